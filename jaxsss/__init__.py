@@ -1,0 +1,41 @@
+"""jaxsss: a differentiable JAX toolkit for translucent materials.
+
+Units are mm and 1/mm; ``eta = n_inside / n_outside``; float64 by default; every function broadcasts over a trailing
+channel axis. See ``docs/architecture.md``.
+"""
+
+from jaxsss import _config  # noqa: F401  (enables float64 before anything else)
+from jaxsss.fresnel import F_DR_METHODS, A_coefficient, F_dr, F_dr_exact, F_dr_poly, F_dt, fresnel_reflectance
+from jaxsss.medium import Medium
+from jaxsss.profiles import dipole_depths, dipole_profile
+from jaxsss.reflectance import (
+    RdInversion,
+    alpha_prime_from_rd,
+    invert_rd,
+    medium_total_diffuse_reflectance,
+    total_diffuse_reflectance,
+)
+from jaxsss.reparam import Reparameterisation, from_rd_ld, to_rd_ld
+
+__version__ = "0.1.0"
+
+__all__ = [
+    "A_coefficient",
+    "F_DR_METHODS",
+    "F_dr",
+    "F_dr_exact",
+    "F_dr_poly",
+    "F_dt",
+    "Medium",
+    "RdInversion",
+    "Reparameterisation",
+    "alpha_prime_from_rd",
+    "dipole_depths",
+    "dipole_profile",
+    "fresnel_reflectance",
+    "from_rd_ld",
+    "invert_rd",
+    "medium_total_diffuse_reflectance",
+    "to_rd_ld",
+    "total_diffuse_reflectance",
+]
