@@ -39,9 +39,14 @@ __all__ = [
 _SQRT3 = 3.0**0.5
 
 
+def _eq15(alpha_prime, u, A):
+    """Hierarchical paper Eq. 15 with ``u = sqrt(3 (1 - alpha'))`` supplied by the caller (so it can avoid cancellation)."""
+    return 0.5 * alpha_prime * (1.0 + jnp.exp(-4.0 / 3.0 * A * u)) * jnp.exp(-u)
+
+
 def total_diffuse_reflectance_u(u, A):
     """Eq. 15 in the variable ``u = sqrt(3 (1 - alpha'))`` in ``[0, sqrt(3)]``: ``(1 - u^2/3)/2 (1 + e^{-4Au/3}) e^{-u}``."""
-    return 0.5 * (1.0 - u * u / 3.0) * (1.0 + jnp.exp(-4.0 / 3.0 * A * u)) * jnp.exp(-u)
+    return _eq15(1.0 - u * u / 3.0, u, A)
 
 
 def total_diffuse_reflectance(alpha_prime, A):
@@ -56,14 +61,12 @@ def total_diffuse_reflectance(alpha_prime, A):
     """
     alpha_prime = check_range(alpha_prime, "alpha_prime", 0.0, 1.0, owner="total_diffuse_reflectance")
     A = check_range(A, "A", 0.0, None, lo_open=True, owner="total_diffuse_reflectance")
-    # u = sqrt(3 (1 - alpha')); the safe sqrt keeps the gradient finite-valued away from alpha' = 1.
-    return total_diffuse_reflectance_u(jnp.sqrt(3.0 * (1.0 - alpha_prime)), A)
+    return _eq15(alpha_prime, jnp.sqrt(3.0 * (1.0 - alpha_prime)), A)
 
 
 def medium_total_diffuse_reflectance(medium: Medium):
     """``Rd`` of a :class:`Medium` (Eq. 15), using ``1 - alpha' = sigma_a / sigma_t'`` to avoid cancellation."""
-    u = jnp.sqrt(3.0 * medium.one_minus_alpha_prime)
-    return total_diffuse_reflectance_u(u, medium.A)
+    return _eq15(medium.alpha_prime, jnp.sqrt(3.0 * medium.one_minus_alpha_prime), medium.A)
 
 
 class RdInversion(eqx.Module):
@@ -143,14 +146,15 @@ def _invert(Rd, A, rtol, atol, max_steps):
     )
 
 
-def invert_rd(Rd, A, *, rtol: float = 1e-13, atol: float = 1e-13, max_steps: int = 64) -> RdInversion:
+def invert_rd(Rd, A, *, rtol: float | None = None, atol: float | None = None, max_steps: int = 64) -> RdInversion:
     """Solve Eq. 15 for the reduced albedo: ``Rd(alpha', A) = Rd``.
 
     Args:
         Rd: total diffuse reflectance in the open interval ``(0, 1)``, any shape.
         A: boundary coefficient (``> 0``), broadcasting with ``Rd``.
-        rtol, atol: Newton tolerances on ``s`` (see module docstring). The defaults give ``alpha'`` and
-            ``1 - alpha'`` to about 1e-14 relative.
+        rtol, atol: Newton tolerances on ``s`` (see module docstring). The defaults, 1e-13 in float64 and 1e-6 in
+            float32 (chosen from the dtype of ``Rd``), give ``alpha'`` and ``1 - alpha'`` to about 1e-14 relative in
+            float64.
         max_steps: iteration cap; elements that hit it report ``result != successful``.
 
     Returns:
@@ -158,6 +162,9 @@ def invert_rd(Rd, A, *, rtol: float = 1e-13, atol: float = 1e-13, max_steps: int
     """
     Rd = check_range(Rd, "Rd", 0.0, 1.0, lo_open=True, hi_open=True, owner="invert_rd")
     A = check_range(A, "A", 0.0, None, lo_open=True, owner="invert_rd")
+    default_tol = 1e-13 if jnp.result_type(Rd, A) == jnp.float64 else 1e-6
+    rtol = default_tol if rtol is None else rtol
+    atol = default_tol if atol is None else atol
     return _invert(Rd, A, rtol, atol, max_steps)
 
 

@@ -52,7 +52,7 @@ class Reparameterisation(eqx.Module):
         return self.result == optx.RESULTS.successful
 
 
-def from_rd_ld(rd, ld, eta, g=None, *, fresnel: str = "poly", rtol: float = 1e-13) -> Reparameterisation:
+def from_rd_ld(rd, ld, eta, g=None, *, fresnel: str = "poly", rtol: float | None = None) -> Reparameterisation:
     """(Rd, l_d, eta[, g]) -> (sigma_a, sigma_s', alpha'[, sigma_s, sigma_t]) by Eq. 15 inverted and Eq. 16.
 
     Args:

@@ -35,7 +35,6 @@ def dipole_depths(medium: Medium):
     return z_r, z_v
 
 
-@eqx.filter_jit
 def dipole_profile(r, medium: Medium):
     """Dipole diffuse reflectance profile ``R_d(r)`` per unit flux entering the medium.
 
@@ -47,7 +46,12 @@ def dipole_profile(r, medium: Medium):
     Returns:
         ``R_d(r)`` in 1/mm^2, the broadcast shape of ``r`` and the medium.
     """
-    r = check_range(r, "r", 0.0, None, owner="dipole_profile")
+    # Checked outside the compiled kernel: eagerly for concrete r, by equinox.error_if under a caller's jit.
+    return _dipole_profile(check_range(r, "r", 0.0, None, owner="dipole_profile"), medium)
+
+
+@eqx.filter_jit
+def _dipole_profile(r, medium: Medium):
     z_r, z_v = dipole_depths(medium)
     sigma_tr = medium.sigma_tr
     # Hierarchical paper Eq. 8-9 (photon-diffusion Eq. 6): real source at depth z_r, negative image at height z_v

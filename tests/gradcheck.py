@@ -1,0 +1,37 @@
+"""Autodiff checks shared by the test suite: gradients against central finite differences in float64.
+
+``jax.test_util.check_grads`` steps by an absolute ``eps``, which is wrong for parameters spanning 1e-9..1e4 (the
+stability matrix). :func:`assert_grad_matches_fd` steps relative to each coordinate instead.
+"""
+
+from __future__ import annotations
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+
+def central_difference(f, x, rel_step=1e-6):
+    """Central finite-difference gradient of scalar ``f`` at float64 array ``x``, steps ``rel_step * |x_i|``."""
+    x = np.asarray(x, dtype=np.float64)
+    grad = np.zeros_like(x)
+    for idx in np.ndindex(x.shape):
+        h = rel_step * max(abs(x[idx]), 1e-300)
+        xp, xm = x.copy(), x.copy()
+        xp[idx] += h
+        xm[idx] -= h
+        grad[idx] = (float(f(jnp.asarray(xp))) - float(f(jnp.asarray(xm)))) / (xp[idx] - xm[idx])
+    return grad
+
+
+def assert_grad_matches_fd(f, x, *, rel_step=1e-6, rtol=1e-6, atol=0.0):
+    """Assert ``jax.grad(f)(x)`` (reverse mode) and ``jax.jvp`` (forward mode) match central differences."""
+    x = jnp.asarray(x, dtype=jnp.float64)
+    g_rev = np.asarray(jax.grad(f)(x))
+    g_fd = central_difference(f, x, rel_step)
+    assert np.all(np.isfinite(g_rev)), g_rev
+    np.testing.assert_allclose(g_rev, g_fd, rtol=rtol, atol=atol, err_msg="reverse mode vs central differences")
+    # Forward mode along each coordinate.
+    basis = np.eye(x.size).reshape((x.size,) + x.shape)
+    g_fwd = np.array([float(jax.jvp(f, (x,), (jnp.asarray(e),))[1]) for e in basis]).reshape(x.shape)
+    np.testing.assert_allclose(g_fwd, g_rev, rtol=1e-10, atol=1e-300, err_msg="forward vs reverse mode")
