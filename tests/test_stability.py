@@ -1,0 +1,120 @@
+"""The stability matrix of the physics core (DESIGN.md): stiff and extreme parameters, values and gradients finite,
+float32 within a stated distance of float64.
+
+Grid: alpha' in {1e-6, 1e-3, 0.5, 0.99, 1 - 1e-9} x sigma_t' in {1e-4, 1e-2, 1, 1e2, 1e4} /mm x
+eta in {0.5, 1, 1.0001, 1.3, 2.5} x r in {0, 1e-3, 1, 10, 1e4} l_d. Every model added to the core adds its rows here.
+
+Stated float32 tolerances (relative to float64, measured maxima in brackets):
+- dipole profile: 1e-5 wherever the float64 value exceeds 1e-30 (float32 underflows below ~1e-38) [1.3e-6];
+- Rd (Eq. 15): 1e-6 [1.5e-7];
+- Rd inversion: alpha' and 1 - alpha' within 1e-4 relative, for Rd in [1e-6, 1 - 1e-3] (in float32, Rd closer to 1
+  than ~1e-3 is not resolvable: 1 - Rd has few bits left) [alpha' 2.5e-6, 1 - alpha' 2.7e-5].
+"""
+
+import itertools
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+from jaxsss.medium import Medium
+from jaxsss.profiles.dipole import dipole_profile
+from jaxsss.reflectance import invert_rd, medium_total_diffuse_reflectance
+from jaxsss.reparam import from_rd_ld
+
+ALPHA = [1e-6, 1e-3, 0.5, 0.99, 1 - 1e-9]
+SIGMA_T = [1e-4, 1e-2, 1.0, 1e2, 1e4]
+ETA = [0.5, 1.0, 1.0001, 1.3, 2.5]
+R_OVER_LD = [0.0, 1e-3, 1.0, 10.0, 1e4]
+
+
+def grid(*axes):
+    return tuple(np.array(c) for c in zip(*itertools.product(*axes)))
+
+
+def medium_arrays(alpha, sigma_t, eta):
+    # sigma_a = sigma_t' (1 - alpha') without forming 1 - alpha' from a rounded alpha'.
+    return sigma_t * (1 - alpha), sigma_t * alpha, eta
+
+
+def profile(x):
+    """Dipole profile at r = x[3] l_d for the medium (x[0], x[1], x[2])."""
+    m = Medium(x[..., 0], x[..., 1], x[..., 2])
+    return dipole_profile(x[..., 3] * m.l_d, m)
+
+
+def rd_of(x):
+    return medium_total_diffuse_reflectance(Medium(x[..., 0], x[..., 1], x[..., 2]))
+
+
+@pytest.fixture(scope="module")
+def profile_inputs():
+    alpha, st, eta, r = grid(ALPHA, SIGMA_T, ETA, R_OVER_LD)
+    sa, ss, eta = medium_arrays(alpha, st, eta)
+    return np.stack([sa, ss, eta, r], axis=-1)
+
+
+def test_dipole_values_and_gradients_finite(profile_inputs):
+    x = jnp.asarray(profile_inputs)
+    R = profile(x)
+    assert bool(jnp.all(jnp.isfinite(R))) and bool(jnp.all(R >= 0))
+    # Gradients of R itself (not its log) in every parameter, at every grid point.
+    grads = jax.vmap(jax.grad(profile))(x)
+    assert bool(jnp.all(jnp.isfinite(grads))), np.argwhere(~np.isfinite(np.asarray(grads)))[:5]
+
+
+def test_dipole_float32_within_stated_tolerance(profile_inputs):
+    R64 = np.asarray(profile(jnp.asarray(profile_inputs)))
+    R32 = profile(jnp.asarray(profile_inputs, dtype=jnp.float32))
+    assert R32.dtype == jnp.float32
+    R32 = np.asarray(R32, dtype=np.float64)
+    assert np.all(np.isfinite(R32))
+    resolved = R64 > 1e-30
+    assert np.max(np.abs(R32[resolved] / R64[resolved] - 1)) < 1e-5
+
+
+@pytest.fixture(scope="module")
+def medium_inputs():
+    alpha, st, eta = grid(ALPHA, SIGMA_T, ETA)
+    return np.stack(medium_arrays(alpha, st, eta), axis=-1)
+
+
+def test_rd_values_gradients_and_float32(medium_inputs):
+    x = jnp.asarray(medium_inputs)
+    Rd = rd_of(x)
+    assert bool(jnp.all(jnp.isfinite(Rd))) and bool(jnp.all((Rd > 0) & (Rd < 1)))
+    assert bool(jnp.all(jnp.isfinite(jax.vmap(jax.grad(rd_of))(x))))
+    Rd32 = np.asarray(rd_of(jnp.asarray(medium_inputs, dtype=jnp.float32)), dtype=np.float64)
+    assert np.max(np.abs(Rd32 / np.asarray(Rd) - 1)) < 1e-6
+
+
+def test_inversion_and_reparam_round_trip_over_the_grid(medium_inputs):
+    x = jnp.asarray(medium_inputs)
+    m = Medium(x[:, 0], x[:, 1], x[:, 2])
+    Rd, ld = rd_of(x), m.l_d
+    rep = from_rd_ld(Rd, ld, x[:, 2])
+    assert bool(jnp.all(rep.converged))
+    # Recovers sigma_a and sigma_s' across 8 decades of sigma_t' and the stiff albedos.
+    np.testing.assert_allclose(rep.medium.sigma_a, m.sigma_a, rtol=1e-9)
+    np.testing.assert_allclose(rep.medium.sigma_s_prime, m.sigma_s_prime, rtol=1e-9)
+
+    def recovered(y):
+        r = from_rd_ld(y[0], y[1], y[2]).medium
+        return r.sigma_a + r.sigma_s_prime
+
+    grads = jax.vmap(jax.grad(recovered))(jnp.stack([Rd, ld, x[:, 2]], axis=-1))
+    assert bool(jnp.all(jnp.isfinite(grads)))
+
+
+def test_inversion_float32_within_stated_tolerance():
+    Rd = np.concatenate([np.logspace(-6, -1, 11), np.linspace(0.1, 0.999, 11)])
+    A = np.array([0.45, 1.0, 4.3])
+    R, AA = np.meshgrid(Rd, A)
+    inv64 = invert_rd(R, AA)
+    inv32 = invert_rd(R.astype(np.float32), AA.astype(np.float32))
+    assert inv32.alpha_prime.dtype == jnp.float32 and bool(jnp.all(inv32.converged))
+    for name in ("alpha_prime", "one_minus_alpha_prime"):
+        a64 = np.asarray(getattr(inv64, name))
+        a32 = np.asarray(getattr(inv32, name), dtype=np.float64)
+        assert np.max(np.abs(a32 / a64 - 1)) < 1e-4, name
