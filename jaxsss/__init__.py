@@ -7,7 +7,14 @@ channel axis. See ``docs/architecture.md``.
 from jaxsss import _config  # noqa: F401  (enables float64 before anything else)
 from jaxsss.fresnel import F_DR_METHODS, A_coefficient, F_dr, F_dr_exact, F_dr_poly, F_dt, fresnel_reflectance
 from jaxsss.medium import Medium
-from jaxsss.profiles import dipole_depths, dipole_profile
+from jaxsss.profiles import (
+    dipole_depths,
+    dipole_profile,
+    multipole_depths,
+    multipole_n_pairs,
+    multipole_profile,
+    multipole_totals,
+)
 from jaxsss.reflectance import (
     RdInversion,
     alpha_prime_from_rd,
@@ -36,6 +43,10 @@ __all__ = [
     "from_rd_ld",
     "invert_rd",
     "medium_total_diffuse_reflectance",
+    "multipole_depths",
+    "multipole_n_pairs",
+    "multipole_profile",
+    "multipole_totals",
     "to_rd_ld",
     "total_diffuse_reflectance",
 ]
