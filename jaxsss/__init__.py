@@ -5,6 +5,7 @@ channel axis. See ``docs/architecture.md``.
 """
 
 from jaxsss import _config  # noqa: F401  (enables float64 before anything else)
+from jaxsss.data import MATERIAL_TABLES, MeasuredMaterial, list_materials, material, material_medium
 from jaxsss.fresnel import F_DR_METHODS, A_coefficient, F_dr, F_dr_exact, F_dr_poly, F_dt, fresnel_reflectance
 from jaxsss.medium import Medium
 from jaxsss.profiles import (
@@ -33,6 +34,8 @@ __all__ = [
     "F_dr_exact",
     "F_dr_poly",
     "F_dt",
+    "MATERIAL_TABLES",
+    "MeasuredMaterial",
     "Medium",
     "RdInversion",
     "Reparameterisation",
@@ -42,6 +45,9 @@ __all__ = [
     "fresnel_reflectance",
     "from_rd_ld",
     "invert_rd",
+    "list_materials",
+    "material",
+    "material_medium",
     "medium_total_diffuse_reflectance",
     "multipole_depths",
     "multipole_n_pairs",

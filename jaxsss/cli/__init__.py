@@ -1,0 +1,51 @@
+"""The ``jaxsss`` command line (console script ``jaxsss = "jaxsss.cli:main"``; also ``python -m jaxsss``).
+
+Subcommands live in their own modules and register themselves through :data:`COMMANDS`:
+
+- ``reparam`` (:mod:`jaxsss.cli.reparam`): (Rd, l_d) <-> (sigma_a, sigma_s');
+- ``profile`` (:mod:`jaxsss.cli.profile`): a diffusion profile R(r) (and T(r)) as a table, JSON or plot;
+- ``run`` (:mod:`jaxsss.cli.run`): the project's main job (``make run``).
+
+User errors print one line ``jaxsss: error: ...`` on stderr and give exit status 2 (see :mod:`jaxsss.cli._common`).
+"""
+
+from __future__ import annotations
+
+import sys
+
+from jaxsss.cli import profile, reparam, run
+from jaxsss.cli._common import PROG, UNITS_EPILOG, CLIError, Parser, report_error
+
+__all__ = ["COMMANDS", "build_parser", "main"]
+
+COMMANDS = (reparam, profile, run)
+"""Subcommand modules; each provides ``add_parser(subparsers)`` which sets ``run(args) -> int`` as a default."""
+
+
+def build_parser() -> Parser:
+    parser = Parser(
+        prog=PROG,
+        description="jaxsss: differentiable diffusion models of translucent materials.",
+        epilog=UNITS_EPILOG,
+    )
+    from jaxsss import __version__
+
+    parser.add_argument("--version", action="version", version=f"{PROG} {__version__}")
+    subparsers = parser.add_subparsers(dest="command", metavar="COMMAND", required=True)
+    for command in COMMANDS:
+        command.add_parser(subparsers)
+    return parser
+
+
+def main(argv=None) -> int:
+    """Run the command line with ``argv`` (default ``sys.argv[1:]``); return the exit status.
+
+    ``--help`` and ``--version`` exit through ``SystemExit(0)`` as usual with argparse.
+    """
+    parser = build_parser()
+    try:
+        args = parser.parse_args(sys.argv[1:] if argv is None else list(argv))
+        return int(args.run(args) or 0)
+    # User errors: ours, argparse's (via Parser.error), and the library's boundary validation.
+    except (CLIError, ValueError, TypeError) as err:
+        return report_error(str(err))

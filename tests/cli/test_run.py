@@ -1,0 +1,77 @@
+"""``jaxsss run``: the main job prints the Jensen 2001 table and writes the dipole-profile plot."""
+
+import json
+
+import numpy as np
+import pytest
+
+from jaxsss.cli import main
+from jaxsss.cli.run import STEPS
+from jaxsss.data import list_materials
+
+PNG_SIGNATURE = b"\x89PNG\r\n\x1a\n"
+
+
+@pytest.fixture(scope="module")
+def job(tmp_path_factory):
+    """Run the job once for this module (it compiles the profile; keep the suite fast)."""
+    import contextlib
+    import io
+
+    out_dir = tmp_path_factory.mktemp("run") / "nested" / "out"
+    stdout, stderr = io.StringIO(), io.StringIO()
+    with contextlib.redirect_stdout(stdout), contextlib.redirect_stderr(stderr):
+        code = main(["run", "--out-dir", str(out_dir)])
+    return code, stdout.getvalue(), stderr.getvalue(), out_dir
+
+
+def test_job_succeeds_and_writes_the_plot(job):
+    code, out, err, out_dir = job
+    assert code == 0 and err == ""
+    path = out_dir / "dipole_profiles.png"
+    assert path.read_bytes()[:8] == PNG_SIGNATURE
+    assert f"wrote {path}" in out
+
+
+def test_job_prints_all_twelve_materials_with_three_channels(job):
+    _, out, _, _ = job
+    names = list_materials("jensen2001")
+    assert len(names) == 12
+    lines = out.splitlines()
+    header = next(i for i, line in enumerate(lines) if line.startswith("material"))
+    rows = [line.split() for line in lines[header + 1: header + 1 + 36]]
+    assert [r[0] for r in rows[::3]] == names  # name on the first of each material's three channel rows
+    assert [r[2] if i % 3 == 0 else r[0] for i, r in enumerate(rows)] == ["R", "G", "B"] * 12
+    assert "nan" not in out.lower()
+
+
+def test_job_table_agrees_with_reparam(job, capsys):
+    """The table's Rd and l_d are the reverse reparameterisation at the table's eta (marble: eta 1.5)."""
+    _, out, _, _ = job
+    rows = [line.split() for line in out.splitlines()]
+    i = next(k for k, r in enumerate(rows) if r and r[0] == "marble")
+    table_rd = [float(rows[i][5])] + [float(rows[i + c][3]) for c in (1, 2)]
+    table_ld = [float(rows[i][6])] + [float(rows[i + c][4]) for c in (1, 2)]
+    assert main(["reparam", "--material", "marble", "--json"]) == 0
+    ref = json.loads(capsys.readouterr().out)
+    # The table prints 5 significant digits.
+    np.testing.assert_allclose(table_rd, ref["rd"], rtol=1e-4)
+    np.testing.assert_allclose(table_ld, ref["ld"], rtol=1e-4)
+    spectralon = next(k for k, r in enumerate(rows) if r and r[0] == "spectralon")
+    assert rows[spectralon][-1] == "inf"  # sigma_a = 0: infinite l_d, printed as inf
+
+
+def test_job_is_a_list_of_steps(job):
+    _, out, _, _ = job
+    assert [s.name for s in STEPS][:2] == ["reparam", "dipole_profiles"]
+    for i, step in enumerate(STEPS, 1):
+        assert f"step {i}/{len(STEPS)}: {step.name}" in out
+
+
+def test_out_dir_that_is_a_file_is_a_user_error(capsys, tmp_path):
+    blocker = tmp_path / "out"
+    blocker.write_text("")
+    assert main(["run", "--out-dir", str(blocker)]) == 2
+    captured = capsys.readouterr()
+    assert captured.out == ""
+    assert captured.err.startswith("jaxsss: error:") and captured.err.count("\n") == 1
