@@ -49,3 +49,6 @@ def main(argv=None) -> int:
     # User errors: ours, argparse's (via Parser.error), and the library's boundary validation.
     except (CLIError, ValueError, TypeError) as err:
         return report_error(str(err))
+    except BrokenPipeError:  # output piped into `head` and closed: not an error worth a traceback
+        sys.stderr.close()
+        return 0
