@@ -1,6 +1,5 @@
 """Execute every notebook under notebooks/ end to end (at a small size: JAXSSS_NOTEBOOK_QUICK=1)."""
 
-import os
 from pathlib import Path
 
 import nbformat

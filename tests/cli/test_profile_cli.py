@@ -1,43 +1,21 @@
 """``jaxsss profile``: values against an independent dipole formula, JSON layout, table, plots, multipole, errors."""
 
-import json
 
 import numpy as np
 import pytest
 
-from jaxsss.cli import main
+from tests.cli.runner import run_cli, run_json
+from tests.profiles.test_dipole import paper_eq8
 
 PNG_SIGNATURE = b"\x89PNG\r\n\x1a\n"
 
 
-def run_cli(capsys, *argv):
-    code = main([str(a) for a in argv])
-    out, err = capsys.readouterr()
-    return code, out, err
-
-
-def run_json(capsys, *argv):
-    code, out, err = run_cli(capsys, *argv, "--json")
-    assert code == 0, err
-    return json.loads(out)
+RADII = [0.0, 0.05, 1.0, 7.5, 40.0]
 
 
 def independent_dipole(r, sigma_a, sigma_s_prime, eta):
-    """Hierarchical paper Eq. 8-10 with the alpha'/(4 pi) factor, in NumPy (eta >= 1, Groenhuis F_dr)."""
-    r = np.asarray(r, dtype=float)[:, None]
-    sigma_a, sigma_s_prime = np.asarray(sigma_a, dtype=float), np.asarray(sigma_s_prime, dtype=float)
-    st = sigma_a + sigma_s_prime
-    sigma_tr = np.sqrt(3 * sigma_a * st)
-    F_dr = -1.4399 / eta**2 + 0.7099 / eta + 0.6681 + 0.0636 * eta
-    A = (1 + F_dr) / (1 - F_dr)
-    z_r = 1 / st
-    z_v = z_r * (1 + 4 * A / 3)
-    d_r, d_v = np.sqrt(r**2 + z_r**2), np.sqrt(r**2 + z_v**2)
-    term = lambda z, d: z * (1 + sigma_tr * d) * np.exp(-sigma_tr * d) / d**3  # noqa: E731
-    return sigma_s_prime / st / (4 * np.pi) * (term(z_r, d_r) + term(z_v, d_v))
-
-
-RADII = [0.0, 0.05, 1.0, 7.5, 40.0]
+    """The dipole test's NumPy transcription of Eq. 8-10, radii down the rows and channels across."""
+    return paper_eq8(np.asarray(r, dtype=float)[:, None], np.asarray(sigma_a), np.asarray(sigma_s_prime), eta)
 
 
 def test_dipole_json_matches_independent_formula_three_channels(capsys):

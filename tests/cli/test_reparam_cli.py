@@ -1,6 +1,5 @@
 """``jaxsss reparam``: agreement with an independent mpmath computation, round trips, output formats, user errors."""
 
-import json
 import subprocess
 import sys
 
@@ -14,19 +13,7 @@ import pytest
 
 import jaxsss.reparam
 from jaxsss.cli import main
-
-
-def run_cli(capsys, *argv):
-    code = main([str(a) for a in argv])
-    out, err = capsys.readouterr()
-    return code, out, err
-
-
-def run_json(capsys, *argv):
-    code, out, err = run_cli(capsys, *argv, "--json")
-    assert code == 0, err
-    assert err == ""
-    return json.loads(out)
+from tests.cli.runner import run_cli, run_json
 
 
 # --- Independent computation (mpmath, 50 digits) of the hierarchical paper's Eq. 15 and 16 --------------------------
