@@ -175,13 +175,18 @@ def test_scalar_channel_and_batched_shapes_agree():
     np.testing.assert_allclose(z_v[5], -(m3.l_u + 2 * m3.z_b), rtol=1e-15)
 
 
-def test_chunked_kernel_matches_unchunked(monkeypatch):
+def test_accumulating_kernel_matches_explicit_sum_over_depths():
+    # The kernel adds one pair per iteration; the reference materialises every source from multipole_depths.
     m, d = _slab(SLABS[1])
     r = np.linspace(0.0, 5.0, 7)
-    expected = multipole_profile(r, m, d, n_pairs=40)
-    monkeypatch.setattr(multipole_module, "_CHUNK_ELEMENTS", 7 * 9)  # 9 sources per chunk: 81 sources in 9 chunks
-    got = multipole_profile(r, m, d, n_pairs=40)
-    np.testing.assert_allclose(np.asarray(got), np.asarray(expected), rtol=1e-14)
+    z_r, z_v = (np.asarray(z) for z in multipole_depths(m, d, 40))
+    sig, alpha = float(m.sigma_tr), float(m.alpha_prime)
+    E = lambda z: np.asarray(point_source_exitance(z[:, None], r, sig))  # noqa: E731
+    R_ref = alpha * np.sum(E(z_r) - E(z_v), axis=0)
+    T_ref = alpha * np.sum(E(d - z_r) - E(d - z_v), axis=0)
+    R, T = multipole_profile(r, m, d, n_pairs=40)
+    np.testing.assert_allclose(R, R_ref, rtol=1e-13)
+    np.testing.assert_allclose(T, T_ref, rtol=1e-13)
 
 
 # --- 3. Bad and extreme input -------------------------------------------------------------------------------------
