@@ -30,7 +30,7 @@ from jaxtyping import Array, Float
 
 from jaxsss import _config  # noqa: F401  (float64)
 from jaxsss._validate import check_range, require
-from jaxsss.fresnel import A_coefficient, F_dr, resolve_fresnel_method
+from jaxsss.fresnel import resolve_fresnel_method
 
 __all__ = ["Medium"]
 
@@ -115,7 +115,8 @@ class Medium(eqx.Module):
     @property
     def F_dr(self):
         """Diffuse Fresnel reflectance of the boundary seen from inside (method ``self.fresnel``)."""
-        return F_dr(self.eta, self.fresnel)
+        # eta was validated when the medium was built: call the method directly, with no second run-time check.
+        return resolve_fresnel_method(self.fresnel)(self.eta)
 
     @property
     def F_dt(self):
@@ -125,7 +126,8 @@ class Medium(eqx.Module):
     @property
     def A(self):
         """Boundary coefficient ``A = (1 + F_dr) / (1 - F_dr)``."""
-        return A_coefficient(self.eta, self.fresnel)
+        F_dr = self.F_dr
+        return (1.0 + F_dr) / (1.0 - F_dr)
 
     @property
     def z_b(self):
