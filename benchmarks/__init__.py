@@ -18,7 +18,7 @@ from benchmarks._harness import (
     write_results,
 )
 
-BENCHMARKS = ("profile_throughput", "rd_inversion")
+BENCHMARKS = ("profile_throughput", "rd_inversion", "mc_throughput")
 """Module names under :mod:`benchmarks` run by :mod:`benchmarks.run_all`, in order."""
 
 __all__ = [

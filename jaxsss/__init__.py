@@ -25,6 +25,8 @@ from jaxsss.reflectance import (
 )
 from jaxsss.reparam import Reparameterisation, from_rd_ld, to_rd_ld
 
+from jaxsss import mc  # noqa: E402  (Monte Carlo transport reference: jaxsss.mc.simulate, Stack, Layer, MCResult)
+
 __version__ = "0.1.0"
 
 __all__ = [
@@ -48,6 +50,7 @@ __all__ = [
     "list_materials",
     "material",
     "material_medium",
+    "mc",
     "medium_total_diffuse_reflectance",
     "multipole_depths",
     "multipole_n_pairs",

@@ -1,0 +1,328 @@
+"""The jitted photon-transport kernel: one batch of photon packets advanced in lock-step lanes.
+
+The physics is MCML's (Wang, Jacques and Zheng 1995, "MCML -- Monte Carlo modeling of light transport in
+multi-layered tissues", Comput. Methods Programs Biomed. 47:131); the comments name the section of the MCML manual.
+
+Lanes and regeneration. ``lanes`` photons are advanced together inside one ``lax.while_loop``; each iteration moves
+every live lane by one *event* (a hop to the next interaction site, or a hop to the next interface). When a lane's
+photon dies (it leaves the stack, loses the roulette, or hits the step cap) a new photon is launched in that lane at
+the next iteration, until the batch's budget of photons has been launched; the loop ends when every launched photon
+is dead. Long random walks at high albedo therefore do not leave lanes idle, except in the batch's final tail.
+
+Random numbers. Each lane carries its own 64-bit SplitMix64 state (Steele, Lea and Flood 2014), seeded from
+``jax.random.bits`` of the batch key; four 53-bit uniforms are drawn per event. A counter-based generator in the loop
+carry costs a few integer operations per number, against ~20 rounds of Threefry for ``jax.random`` (measured: the
+engine ran ~2x slower with ``jax.random.split`` per step). Lane streams start at independent random points of the
+2^64 cycle; overlaps need ~2^64 / (lanes x draws) -- never in practice.
+
+Tallies are scatter-adds (``.at[index].add(..., mode="drop")``; lanes that do not contribute get an index one past
+the end, which is dropped). Every per-photon tally also accumulates the square of the photon's contribution, so the
+host can form standard errors from per-photon second moments (each photon exits at most once, so the sum of squares
+of the exit weights *is* the sum of squared per-photon contributions; absorption is accumulated per photon in the
+lane and squared when the photon dies).
+"""
+
+from __future__ import annotations
+
+import math
+from typing import NamedTuple
+
+import jax
+import jax.numpy as jnp
+from jax import lax
+
+from jaxsss import _config  # noqa: F401  (float64)
+
+__all__ = ["KernelConfig", "batch_kernel", "new_tallies"]
+
+_GOLDEN = 0x9E3779B97F4A7C15
+_MIX1 = 0xBF58476D1CE4E5B9
+_MIX2 = 0x94D049BB133111EB
+N_ORDER = 3  # scattering-order classes: 0 (unscattered), 1 (single), >= 2 (multiple)
+
+
+class KernelConfig(NamedTuple):
+    """Everything that changes the compiled program (static); values (coefficients, edges, angle) are not here."""
+
+    num_layers: int
+    n_r: int  # radial bins (0: no profile)
+    n_x: int  # x bins of the exit histogram (0: none)
+    n_y: int
+    n_path: int  # pathlength bins of R(r, L) (0: none; needs n_r > 0)
+    lanes: int
+    max_steps: int  # events per photon before it is killed and counted as a step-cap hit
+    weight_threshold: float  # Russian roulette below this weight
+    roulette_chance: float  # survival probability; survivors' weight is divided by it
+
+
+def _uniform(s):
+    """SplitMix64: advance the per-lane state ``s`` (uint64) and return ``(s, u)``, ``u`` uniform in [0, 1)."""
+    s = s + jnp.uint64(_GOLDEN)
+    z = s
+    z = (z ^ (z >> jnp.uint64(30))) * jnp.uint64(_MIX1)
+    z = (z ^ (z >> jnp.uint64(27))) * jnp.uint64(_MIX2)
+    z = z ^ (z >> jnp.uint64(31))
+    return s, (z >> jnp.uint64(11)).astype(jnp.float64) * (2.0**-53)
+
+
+def _bin(edges, v):
+    """Bin index of ``v`` in sorted ``edges`` (``len(edges) - 1`` bins) and whether it falls inside them."""
+    # Comparing against every edge vectorises; the binary search (``scan``) is a loop, faster for long grids only.
+    method = "compare_all" if edges.shape[0] <= 256 else "scan"
+    i = jnp.searchsorted(edges, v, side="right", method=method).astype(jnp.int32) - 1
+    inside = (v >= edges[0]) & (v < edges[-1])
+    return i, inside
+
+
+def new_tallies(cfg: KernelConfig) -> dict:
+    """Zeroed tallies. ``[..., 0]`` holds sums of weights, ``[..., 1]`` sums of squared weights, per photon."""
+    f = jnp.float64
+    t = {
+        # (R or T, order class, moment)
+        "exit": jnp.zeros((2, N_ORDER, 2), f),
+        "absorbed": jnp.zeros((cfg.num_layers,), f),
+        "absorbed_sq": jnp.zeros((), f),
+        "roulette": jnp.zeros((), f),  # weight removed by roulette minus weight added to survivors
+        "cap_hits": jnp.zeros((), jnp.int64),
+        "cap_weight": jnp.zeros((), f),
+        "events": jnp.zeros((), jnp.int64),  # lane events of live photons (interactions + boundary hits)
+        "iterations": jnp.zeros((), jnp.int64),
+        # Mean exit radius of the diffuse reflectance (ratio estimator): sum w r, sum (w r)^2, sum w^2 r.
+        "exit_radius": jnp.zeros((3,), f),
+    }
+    if cfg.n_r:
+        t["profile"] = jnp.zeros((2 * N_ORDER * cfg.n_r, 2), f)  # flat (R/T, order, r bin), moment
+    if cfg.n_x:
+        t["xy"] = jnp.zeros((cfg.n_x * cfg.n_y, 2), f)
+    if cfg.n_path:
+        t["r_path"] = jnp.zeros((cfg.n_r * cfg.n_path, 2), f)
+    return t
+
+
+def _fresnel(cos_i, rel):
+    """Unpolarised Fresnel reflectance and refraction cosine for incidence cosine ``cos_i`` onto relative index
+    ``rel = n_t / n_i`` (total internal reflection gives ``R = 1``). Same formula as
+    :func:`jaxsss.fresnel.fresnel_reflectance`; also returns ``cos_t``, which the engine needs."""
+    sin2_t = (1.0 - cos_i * cos_i) / (rel * rel)
+    tir = sin2_t >= 1.0
+    cos_t = jnp.sqrt(jnp.where(tir, 0.0, 1.0 - sin2_t))
+    cos_t = jnp.where(rel == 1.0, cos_i, cos_t)  # exact pass-through at matched interfaces
+    r_s = (cos_i - rel * cos_t) / (cos_i + rel * cos_t)
+    r_p = (rel * cos_i - cos_t) / (rel * cos_i + cos_t)
+    F = 0.5 * (r_s * r_s + r_p * r_p)
+    F = jnp.where(rel == 1.0, 0.0, F)
+    F = jnp.where(cos_i <= 0.0, 1.0, F)  # grazing: nothing crosses (and no 0/0)
+    return jnp.where(tir, 1.0, F), cos_t
+
+
+def _hg_cos(g, u):
+    """Henyey-Greenstein deflection cosine by exact inversion (MCML manual Eq. 3.28); isotropic for ``g = 0``."""
+    gs = jnp.where(g == 0.0, 0.5, g)
+    tmp = (1.0 - gs * gs) / (1.0 - gs + 2.0 * gs * u)
+    cos_hg = (1.0 + gs * gs - tmp * tmp) / (2.0 * gs)
+    return jnp.clip(jnp.where(g == 0.0, 2.0 * u - 1.0, cos_hg), -1.0, 1.0)
+
+
+# Taylor coefficients of sin and cos (through a^17 and a^16): on |a| <= pi/4 the truncation error is below 1e-17.
+_SIN_C = tuple((-1) ** k / math.factorial(2 * k + 1) for k in range(9))
+_COS_C = tuple((-1) ** k / math.factorial(2 * k) for k in range(9))
+
+
+def _cos_sin_2pi(u):
+    """``(cos 2 pi u, sin 2 pi u)`` for ``u`` in [0, 1), to float64 rounding.
+
+    XLA's float64 ``sin``/``cos`` on CPU are scalar library calls (~20 ns each per lane, measured; more than the rest
+    of an event). Quadrant reduction ``2 pi u = k pi/2 + a``, ``|a| <= pi/4``, then polynomials in ``a``: exact
+    arithmetic apart from rounding, and fully vectorised.
+    """
+    w = 4.0 * u
+    k = jnp.round(w)
+    a = (w - k) * (0.5 * math.pi)
+    a2 = a * a
+    s = _SIN_C[-1]
+    for c in _SIN_C[-2::-1]:
+        s = s * a2 + c
+    s = s * a
+    c_ = _COS_C[-1]
+    for c in _COS_C[-2::-1]:
+        c_ = c_ * a2 + c
+    q = k.astype(jnp.int32) % 4
+    cos_p = jnp.where(q == 0, c_, jnp.where(q == 1, -s, jnp.where(q == 2, -c_, s)))
+    sin_p = jnp.where(q == 0, s, jnp.where(q == 1, c_, jnp.where(q == 2, -s, -c_)))
+    return cos_p, sin_p
+
+
+def _spin(ux, uy, uz, cos_t, u_phi):
+    """New direction after deflection by ``theta`` and azimuth ``phi = 2 pi u_phi`` from ``(ux, uy, uz)`` (MCML
+    manual Eq. 3.30-3.31)."""
+    sin_t = jnp.sqrt(jnp.maximum(1.0 - cos_t * cos_t, 0.0))
+    cos_p, sin_p = _cos_sin_2pi(u_phi)
+    near_pole = jnp.abs(uz) > 1.0 - 1e-12
+    tmp = jnp.sqrt(jnp.maximum(1.0 - uz * uz, 1e-300))
+    nx = sin_t * (ux * uz * cos_p - uy * sin_p) / tmp + ux * cos_t
+    ny = sin_t * (uy * uz * cos_p + ux * sin_p) / tmp + uy * cos_t
+    nz = -sin_t * cos_p * tmp + uz * cos_t
+    px = sin_t * cos_p
+    py = sin_t * sin_p
+    pz = jnp.sign(uz) * cos_t
+    return jnp.where(near_pole, px, nx), jnp.where(near_pole, py, ny), jnp.where(near_pole, pz, nz)
+
+
+def batch_kernel(cfg: KernelConfig, params: dict, key, budget):
+    """Run one batch of ``budget`` photons; return the batch's tallies (see :func:`new_tallies`).
+
+    ``params`` (all float64 arrays): ``sigma_a, sigma_s, g`` of shape ``(L,)``; ``n_ext = [n_above, n_1..n_L,
+    n_below]``; ``z_edges`` ``(L + 1,)`` (last may be inf); ``r_edges``, ``x_edges``, ``y_edges``, ``path_edges``
+    (bin edges, used when the matching ``cfg`` size is non-zero); ``entry`` = ``(ux0, uz0, w0)``, the refracted
+    direction and the weight that enters (1 - specular). ``budget`` is an int64 scalar (dynamic: the last, partial
+    batch reuses the compiled program).
+    """
+    L = cfg.num_layers
+    lanes = cfg.lanes
+    f64 = jnp.float64
+    sigma_a, sigma_s, g_layer = params["sigma_a"], params["sigma_s"], params["g"]
+    sigma_t = sigma_a + sigma_s
+    n_ext, z_edges = params["n_ext"], params["z_edges"]
+    ux0, uz0, w0 = params["entry"][0], params["entry"][1], params["entry"][2]
+    budget = jnp.asarray(budget, jnp.int64)
+
+    zeros = jnp.zeros((lanes,), f64)
+    izeros = jnp.zeros((lanes,), jnp.int32)
+    state = {
+        "x": zeros, "y": zeros, "z": zeros, "ux": zeros, "uy": zeros, "uz": zeros + 1.0,
+        "w": zeros, "s": zeros, "path": zeros, "absorbed": zeros,
+        "layer": izeros, "order": izeros, "steps": izeros,
+        "alive": jnp.zeros((lanes,), bool),
+        "rng": jax.random.bits(key, (lanes,), jnp.uint64),
+    }
+
+    def cond(carry):
+        st, _, launched = carry
+        return jnp.any(st["alive"]) | (launched < budget)
+
+    def body(carry):
+        st, tal, launched = carry
+        st = dict(st)
+        # --- Photon regeneration: dead lanes take new photons while the budget lasts (MCML manual 3.2: launch).
+        dead = ~st["alive"]
+        rank = jnp.cumsum(dead.astype(jnp.int64))
+        launch = dead & (rank <= budget - launched)
+        launched = launched + jnp.sum(launch.astype(jnp.int64))
+        start = {"x": 0.0, "y": 0.0, "z": 0.0, "ux": ux0, "uy": 0.0, "uz": uz0, "w": w0, "s": 0.0, "path": 0.0,
+                 "absorbed": 0.0}
+        for k, v in start.items():
+            st[k] = jnp.where(launch, v, st[k])
+        for k in ("layer", "order", "steps"):
+            st[k] = jnp.where(launch, 0, st[k])
+        alive = st["alive"] | launch
+
+        rng = st["rng"]
+        rng, u_step = _uniform(rng)
+        rng, u_a = _uniform(rng)
+        rng, u_b = _uniform(rng)
+        rng, u_c = _uniform(rng)
+
+        layer = st["layer"]
+        x, y, z, ux, uy, uz, w = st["x"], st["y"], st["z"], st["ux"], st["uy"], st["uz"], st["w"]
+        mu_t = sigma_t[layer]
+        # --- Step size: a fresh dimensionless step -ln(xi) when the last one is used up (MCML manual 3.3).
+        s = jnp.where(st["s"] <= 0.0, -jnp.log1p(-u_step), st["s"])
+        z_top, z_bot = z_edges[layer], z_edges[layer + 1]
+        d_b = jnp.where(uz > 0.0, (z_bot - z) / jnp.where(uz > 0.0, uz, 1.0),
+                        jnp.where(uz < 0.0, (z_top - z) / jnp.where(uz < 0.0, uz, -1.0), jnp.inf))
+        s_geo = jnp.where(mu_t > 0.0, s / jnp.where(mu_t > 0.0, mu_t, 1.0), jnp.inf)
+        hit = d_b <= s_geo
+        # --- Hop (MCML manual 3.4); at an interface the remaining dimensionless step carries over (3.7).
+        dist = jnp.where(hit, d_b, s_geo)
+        x = x + dist * ux
+        y = y + dist * uy
+        z = jnp.where(hit, jnp.where(uz > 0.0, z_bot, z_top), z + dist * uz)
+        path = st["path"] + dist
+        s = jnp.where(hit, jnp.maximum(s - d_b * mu_t, 0.0), 0.0)
+
+        # --- Interface: reflect with probability R(theta_i) (all-or-none, MCML manual 3.7.1), else cross.
+        up = uz < 0.0
+        nl = layer + jnp.where(up, -1, 1).astype(jnp.int32)
+        rel = n_ext[nl + 1] / n_ext[layer + 1]
+        F, cos_t = _fresnel(jnp.abs(uz), rel)
+        reflect = hit & (u_a < F)
+        cross = hit & ~reflect
+        exit_top = alive & cross & (nl < 0)
+        exit_bot = alive & cross & (nl >= L)
+        inner = cross & (nl >= 0) & (nl < L)
+        # Snell's law for the transmitted direction.
+        ux_b = jnp.where(cross, ux / rel, ux)
+        uy_b = jnp.where(cross, uy / rel, uy)
+        uz_b = jnp.where(reflect, -uz, jnp.where(cross, jnp.where(up, -cos_t, cos_t), uz))
+
+        # --- Interaction: absorb by weight (implicit capture, MCML manual 3.5), then scatter (3.6).
+        interact = alive & ~hit
+        frac_abs = jnp.where(mu_t > 0.0, sigma_a[layer] / jnp.where(mu_t > 0.0, mu_t, 1.0), 0.0)
+        dw = jnp.where(interact, w * frac_abs, 0.0)
+        w = w - dw
+        absorbed = st["absorbed"] + dw
+        cos_s = _hg_cos(g_layer[layer], u_a)
+        sx, sy, sz = _spin(ux, uy, uz, cos_s, u_b)
+        ux = jnp.where(interact, sx, ux_b)
+        uy = jnp.where(interact, sy, uy_b)
+        uz = jnp.where(interact, sz, uz_b)
+        order = st["order"] + interact.astype(jnp.int32)
+        # Russian roulette below the weight threshold (MCML manual 3.8).
+        low = interact & (w < cfg.weight_threshold)
+        w_new = jnp.where(low, jnp.where(u_c < cfg.roulette_chance, w / cfg.roulette_chance, 0.0), w)
+        roulette_dead = low & (w_new == 0.0)
+        roulette = jnp.sum(jnp.where(low, w - w_new, 0.0))
+        w = w_new
+
+        steps = st["steps"] + 1
+        exited = exit_top | exit_bot
+        capped = alive & ~exited & ~roulette_dead & (steps >= cfg.max_steps)
+        died = alive & (exited | roulette_dead | capped)
+
+        # --- Tallies.
+        tal = dict(tal)
+        cls = jnp.minimum(order, N_ORDER - 1)
+        side = jnp.where(exit_top, 0, 1).astype(jnp.int32)
+        combo = side * N_ORDER + cls  # 0..5
+        onehot = (combo[:, None] == jnp.arange(2 * N_ORDER, dtype=jnp.int32)[None, :]) & exited[:, None]
+        w_exit = jnp.where(exited, w, 0.0)
+        moments = jnp.stack([w_exit, w_exit * w_exit], axis=1)
+        tal["exit"] = tal["exit"] + jnp.einsum("lk,lm->km", onehot.astype(f64), moments).reshape(2, N_ORDER, 2)
+        if L == 1:
+            tal["absorbed"] = tal["absorbed"] + jnp.sum(dw)
+        else:
+            tal["absorbed"] = tal["absorbed"] + jnp.sum(
+                jnp.where(layer[:, None] == jnp.arange(L, dtype=jnp.int32)[None, :], dw[:, None], 0.0), axis=0)
+        tal["absorbed_sq"] = tal["absorbed_sq"] + jnp.sum(jnp.where(died, absorbed * absorbed, 0.0))
+        tal["roulette"] = tal["roulette"] + roulette
+        tal["cap_hits"] = tal["cap_hits"] + jnp.sum(capped.astype(jnp.int64))
+        tal["cap_weight"] = tal["cap_weight"] + jnp.sum(jnp.where(capped, w, 0.0))
+        tal["events"] = tal["events"] + jnp.sum(alive.astype(jnp.int64))
+        tal["iterations"] = tal["iterations"] + 1
+        r = jnp.sqrt(x * x + y * y)
+        wr = jnp.where(exit_top, w * r, 0.0)
+        tal["exit_radius"] = tal["exit_radius"] + jnp.stack(
+            [jnp.sum(wr), jnp.sum(wr * wr), jnp.sum(jnp.where(exit_top, w * w * r, 0.0))])
+        if cfg.n_r:
+            ir, in_r = _bin(params["r_edges"], r)
+            idx = jnp.where(exited & in_r, combo * cfg.n_r + ir, 2 * N_ORDER * cfg.n_r)
+            tal["profile"] = tal["profile"].at[idx].add(moments, mode="drop")
+            if cfg.n_path:
+                ip, in_p = _bin(params["path_edges"], path)
+                idx = jnp.where(exit_top & in_r & in_p, ir * cfg.n_path + ip, cfg.n_r * cfg.n_path)
+                tal["r_path"] = tal["r_path"].at[idx].add(moments, mode="drop")
+        if cfg.n_x:
+            ix, in_x = _bin(params["x_edges"], x)
+            iy, in_y = _bin(params["y_edges"], y)
+            idx = jnp.where(exit_top & in_x & in_y, ix * cfg.n_y + iy, cfg.n_x * cfg.n_y)
+            tal["xy"] = tal["xy"].at[idx].add(moments, mode="drop")
+
+        new = {
+            "x": x, "y": y, "z": z, "ux": ux, "uy": uy, "uz": uz, "w": w, "s": s, "path": path,
+            "absorbed": absorbed, "layer": jnp.where(inner, nl, layer), "order": order, "steps": steps,
+            "alive": alive & ~died, "rng": rng,
+        }
+        return new, tal, launched
+
+    _, tallies, _ = lax.while_loop(cond, body, (state, new_tallies(cfg), jnp.zeros((), jnp.int64)))
+    return tallies

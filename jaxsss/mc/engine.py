@@ -1,0 +1,265 @@
+"""``simulate``: stream photon batches through the jitted kernel and assemble an :class:`~jaxsss.mc.MCResult`.
+
+Conventions and choices (see also :mod:`jaxsss.mc._kernel`):
+
+- Incidence: a collimated pencil beam hits the top face at the origin, at ``angle_deg`` degrees from the normal in
+  the ``x``-``z`` plane (the beam travels towards ``+x``). The specular reflection ``F(theta_i)`` (exact Fresnel,
+  ambient ``n_above`` onto layer 1) is removed from the weight deterministically and reported as ``R_specular``;
+  the rest enters refracted by Snell's law.
+- Interfaces: all-or-none reflection with probability ``R`` (MCML's default), at every interface including the outer
+  faces. Chosen over weight splitting because a lane then always carries one packet.
+- Absorption by weight at each interaction (``w *= albedo``); Russian roulette below ``weight_threshold`` with
+  survival chance ``roulette_chance``.
+- Determinism: the result is a function of ``(stack, photons, seed, angle, grids, batch_size, lanes)``. Batch ``b``
+  uses ``jax.random.fold_in(jax.random.key(seed), b)``; changing ``lanes`` or ``batch_size`` changes the random
+  streams (not the expectation).
+- Compilation: one XLA program per :class:`~jaxsss.mc._kernel.KernelConfig` (number of layers, grid sizes, lanes,
+  step cap, roulette settings); coefficients, edges, angle, seed and the batch budget are runtime values, so a new
+  medium or the last partial batch does not recompile.
+"""
+
+from __future__ import annotations
+
+import math
+import sys
+import time
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from jaxsss import _config  # noqa: F401  (float64)
+from jaxsss._validate import check_range
+from jaxsss.mc._kernel import N_ORDER, KernelConfig, batch_kernel
+from jaxsss.fresnel import fresnel_reflectance
+from jaxsss.mc.result import MCResult, stderr_of_mean
+from jaxsss.mc.stack import Stack
+
+__all__ = ["simulate"]
+
+DEFAULT_LANES = 2**13
+DEFAULT_BATCH = 2**20
+DEFAULT_MAX_STEPS = 10**6
+
+_COMPILED: dict = {}
+_jitted = jax.jit(batch_kernel, static_argnums=0)
+
+
+def _edges(edges, name: str, *, nonnegative: bool) -> np.ndarray:
+    """Validate bin edges: 1-D, >= 2 finite values, strictly increasing (and >= 0 for radii and pathlengths)."""
+    arr = np.asarray(edges, dtype=np.float64)
+    if arr.ndim != 1 or arr.size < 2:
+        raise ValueError(f"simulate({name}=array of shape {arr.shape}) must be 1-D with at least 2 edges")
+    check_range(arr, name, 0.0 if nonnegative else None, None, owner="simulate")
+    steps = np.diff(arr)
+    if np.any(steps <= 0):
+        i = int(np.argmax(steps <= 0))
+        raise ValueError(
+            f"simulate({name}[{i}:{i + 2}]={arr[i:i + 2].tolist()}) is not strictly increasing; edges must be "
+            "sorted ascending without repeats"
+        )
+    return arr
+
+
+def _positive_int(x, name: str, lo: int = 1) -> int:
+    if isinstance(x, bool) or not isinstance(x, (int, np.integer, float, np.floating)) or x != int(x):
+        raise ValueError(f"simulate({name}={x!r}) must be an integer in the allowed range [{lo}, inf)")
+    if int(x) < lo:
+        raise ValueError(f"simulate({name}={x!r}) is outside the allowed range [{lo}, inf)")
+    return int(x)
+
+
+def _compiled(cfg: KernelConfig, params: dict, key, budget):
+    """The AOT-compiled kernel for ``cfg`` and these argument shapes, and the seconds spent compiling it now."""
+    sig = (cfg, tuple((k, v.shape, str(v.dtype)) for k, v in sorted(params.items())))
+    if sig in _COMPILED:
+        return _COMPILED[sig], 0.0
+    t0 = time.perf_counter()
+    fn = _jitted.lower(cfg, params, key, budget).compile()
+    _COMPILED[sig] = fn
+    return fn, time.perf_counter() - t0
+
+
+def entry_state(n_above: float, n_1: float, angle_deg: float) -> tuple[float, float, float]:
+    """Specular reflectance and refracted direction ``(R_specular, ux, uz)`` of the beam entering layer 1.
+
+    Exact Fresnel (:func:`jaxsss.fresnel.fresnel_reflectance` with ``eta = n_1 / n_above``, light from outside) at
+    the incidence cosine; Snell's law ``n_above sin(theta_i) = n_1 sin(theta_t)``.
+    """
+    theta = math.radians(angle_deg)
+    cos_i, sin_i = math.cos(theta), math.sin(theta)
+    R_sp = float(fresnel_reflectance(n_1 / n_above, cos_i))
+    sin_t = n_above * sin_i / n_1
+    if sin_t >= 1.0:  # cannot happen from the outside unless n_1 < n_above at grazing angles
+        raise ValueError(f"simulate(angle_deg={angle_deg:g}): total reflection at entry (n_above={n_above:g} > "
+                         f"n={n_1:g}); no light enters")
+    return R_sp, sin_t, math.sqrt(1.0 - sin_t * sin_t)
+
+
+def _auto_lanes(batch_photons: int) -> int:
+    """Default lane count: the power of two nearest below ``batch_photons / 64``, clipped to [256, DEFAULT_LANES]."""
+    target = max(batch_photons // 64, 1)
+    return int(min(max(2 ** int(math.floor(math.log2(target))), 256), DEFAULT_LANES))
+
+
+def _progress_enabled(progress, n_batches: int) -> bool:
+    if progress is None:
+        return n_batches > 1 and sys.stderr.isatty()
+    return bool(progress)
+
+
+def simulate(stack: Stack, photons: int, *, seed: int = 0, angle_deg: float = 0.0, r_edges=None, xy_edges=None,
+             pathlength_edges=None, batch_size: int = DEFAULT_BATCH, lanes: int | None = None,
+             max_steps: int = DEFAULT_MAX_STEPS, weight_threshold: float = 1e-4, roulette_chance: float = 0.1,
+             progress: bool | None = None) -> MCResult:
+    """Monte Carlo photon transport (MCML family) through ``stack`` for ``photons`` incident photon packets.
+
+    Args:
+        stack: the medium (:class:`~jaxsss.mc.Stack`; coefficients in 1/mm, thicknesses in mm).
+        photons: number of incident photons, ``>= 1``.
+        seed: integer seed; equal seeds (with equal settings) give identical results.
+        angle_deg: angle of incidence in the ambient medium above, **degrees** from the normal, ``[0, 90)``.
+        r_edges: radial bin edges, mm, ``(M + 1,)`` strictly increasing, ``>= 0``: enables ``R_r``, ``T_r``.
+        xy_edges: edges of the exit histogram ``R_xy``, mm: one array for both axes or a pair ``(x_edges, y_edges)``.
+        pathlength_edges: pathlength bin edges, mm (e.g. log-spaced), ``>= 0``; enables ``R_r_path``; needs
+            ``r_edges``.
+        batch_size: photons per compiled call (memory is bounded by ``lanes``, not by this).
+        lanes: photons advanced in lock-step. ``None`` (default) picks a power of two in ``[256, 8192]`` that gives
+            each lane at least ~64 photons per batch: a batch ends with a tail in which only the longest walks
+            (~1e4 events at albedo 0.999) still run, so lanes must be few for small runs. On a GPU pass a larger
+            value (e.g. 2**16) for large runs.
+        max_steps: events (interactions + interface hits) per photon before it is killed; hits are counted in
+            ``step_cap_hits`` and their weight in ``step_cap_weight``.
+        weight_threshold, roulette_chance: Russian roulette (MCML: 1e-4 and 0.1).
+        progress: a tqdm bar over batches; ``None`` shows it when there is more than one batch and stderr is a
+            terminal.
+
+    Returns:
+        :class:`~jaxsss.mc.MCResult` (per incident photon; profiles per mm^2; see its docstring).
+
+    Raises:
+        ValueError: naming the argument, its value and the allowed range, for bad input.
+    """
+    if not isinstance(stack, Stack):
+        raise ValueError(f"simulate(stack={stack!r}) must be a jaxsss.mc.Stack")
+    photons = _positive_int(photons, "photons")
+    seed = _positive_int(seed, "seed", lo=0)
+    batch_size = _positive_int(batch_size, "batch_size")
+    lanes = _auto_lanes(min(photons, batch_size)) if lanes is None else _positive_int(lanes, "lanes")
+    max_steps = _positive_int(max_steps, "max_steps")
+    angle_deg = float(check_range(angle_deg, "angle_deg", 0.0, 90.0, hi_open=True, owner="simulate"))
+    weight_threshold = float(check_range(weight_threshold, "weight_threshold", 0.0, 1.0, lo_open=True,
+                                         owner="simulate"))
+    roulette_chance = float(check_range(roulette_chance, "roulette_chance", 0.0, 1.0, lo_open=True,
+                                        owner="simulate"))
+    if r_edges is not None:
+        r_edges = _edges(r_edges, "r_edges", nonnegative=True)
+    if xy_edges is not None:
+        if isinstance(xy_edges, (tuple, list)) and len(xy_edges) == 2 and np.ndim(xy_edges[0]) == 1:
+            x_edges, y_edges = (_edges(e, n, nonnegative=False) for e, n in zip(xy_edges, ("x_edges", "y_edges")))
+        else:
+            x_edges = y_edges = _edges(xy_edges, "xy_edges", nonnegative=False)
+    else:
+        x_edges = y_edges = None
+    if pathlength_edges is not None:
+        if r_edges is None:
+            raise ValueError("simulate(pathlength_edges=...) needs r_edges: R(r, L) is binned in r too")
+        pathlength_edges = _edges(pathlength_edges, "pathlength_edges", nonnegative=True)
+
+    L = stack.num_layers
+    cfg = KernelConfig(
+        num_layers=L,
+        n_r=0 if r_edges is None else r_edges.size - 1,
+        n_x=0 if x_edges is None else x_edges.size - 1,
+        n_y=0 if y_edges is None else y_edges.size - 1,
+        n_path=0 if pathlength_edges is None else pathlength_edges.size - 1,
+        lanes=lanes,
+        max_steps=max_steps,
+        weight_threshold=weight_threshold,
+        roulette_chance=roulette_chance,
+    )
+    R_specular, ux0, uz0 = entry_state(stack.n_above, float(np.asarray(stack.n)[0]), angle_deg)
+    dummy = np.zeros(2)
+    params = {
+        "sigma_a": np.asarray(stack.sigma_a), "sigma_s": np.asarray(stack.sigma_s), "g": np.asarray(stack.g),
+        "n_ext": np.concatenate([[stack.n_above], np.asarray(stack.n), [stack.n_below]]),
+        "z_edges": stack.boundaries(),
+        "r_edges": dummy if r_edges is None else r_edges,
+        "x_edges": dummy if x_edges is None else x_edges,
+        "y_edges": dummy if y_edges is None else y_edges,
+        "path_edges": dummy if pathlength_edges is None else pathlength_edges,
+        "entry": np.array([ux0, uz0, 1.0 - R_specular]),
+    }
+    params = {k: jnp.asarray(v, dtype=jnp.float64) for k, v in params.items()}
+
+    t_start = time.perf_counter()
+    n_batches = math.ceil(photons / batch_size)
+    root = jax.random.key(seed)
+    fn, compile_seconds = _compiled(cfg, params, root, jnp.asarray(batch_size, jnp.int64))
+    totals: dict[str, np.ndarray] = {}
+    batches = range(n_batches)
+    if _progress_enabled(progress, n_batches):
+        from tqdm.auto import tqdm
+
+        batches = tqdm(batches, desc="jaxsss mc", unit="batch", total=n_batches)
+    for b in batches:
+        budget = min(batch_size, photons - b * batch_size)
+        out = fn(params, jax.random.fold_in(root, b), jnp.asarray(budget, jnp.int64))
+        for k, v in out.items():
+            v = np.asarray(v)
+            totals[k] = v.copy() if k not in totals else totals[k] + v
+    seconds = time.perf_counter() - t_start
+    return _assemble(totals, photons, R_specular, cfg, r_edges, x_edges, y_edges, pathlength_edges,
+                     seed=seed, angle_deg=angle_deg, seconds=seconds, compile_seconds=compile_seconds,
+                     batches=n_batches, batch_size=batch_size)
+
+
+def _assemble(t, N, R_specular, cfg, r_edges, x_edges, y_edges, path_edges, **meta) -> MCResult:
+    exit_ = t["exit"]  # (R/T, order, moment)
+    order_mean = exit_[..., 0] / N
+    order_err = stderr_of_mean(exit_[..., 0], exit_[..., 1], N)
+    # Each photon exits at most once, so the per-photon square of a sum over orders is the sum of the squares.
+    tot = exit_.sum(axis=1)
+    R_err, T_err = stderr_of_mean(tot[:, 0], tot[:, 1], N)
+    A_sum = float(t["absorbed"].sum())
+    wr, wr2, w2r = t["exit_radius"]
+    W, W2 = tot[0]
+    if W > 0:
+        mean_r = wr / W
+        # Delta method for a ratio of means: var(mean(wr) / mean(w)) ~ var(wr - m w) / (N mean(w)^2).
+        var = max(wr2 - 2.0 * mean_r * w2r + mean_r * mean_r * W2, 0.0) / N - (wr / N - mean_r * W / N) ** 2
+        mean_r_err = math.sqrt(max(var, 0.0) / max(N - 1, 1)) / (W / N)
+    else:
+        mean_r, mean_r_err = float("nan"), float("nan")
+    kw = dict(
+        photons=N, lanes=cfg.lanes, max_steps=cfg.max_steps, events=int(t["events"]),
+        R_specular=float(R_specular),
+        R_diffuse=float(tot[0, 0] / N), R_diffuse_stderr=float(R_err),
+        R_order=order_mean[0], R_order_stderr=order_err[0],
+        T=float(tot[1, 0] / N), T_stderr=float(T_err), T_order=order_mean[1], T_order_stderr=order_err[1],
+        A=A_sum / N, A_stderr=float(stderr_of_mean(A_sum, t["absorbed_sq"], N)), A_layer=t["absorbed"] / N,
+        roulette_balance=float(t["roulette"]) / N, step_cap_hits=int(t["cap_hits"]),
+        step_cap_weight=float(t["cap_weight"]) / N,
+        mean_exit_radius=float(mean_r), mean_exit_radius_stderr=float(mean_r_err),
+    )
+    if cfg.n_r:
+        area = np.pi * np.diff(r_edges**2)
+        prof = t["profile"].reshape(2, N_ORDER, cfg.n_r, 2)
+        by_order = prof[..., 0] / N / area
+        by_order_err = stderr_of_mean(prof[..., 0], prof[..., 1], N) / area
+        summed = prof.sum(axis=1)
+        err = stderr_of_mean(summed[..., 0], summed[..., 1], N) / area
+        kw.update(r_edges=r_edges, R_r=summed[0, :, 0] / N / area, R_r_stderr=err[0], R_r_order=by_order[0],
+                  R_r_order_stderr=by_order_err[0], T_r=summed[1, :, 0] / N / area, T_r_stderr=err[1],
+                  T_r_order=by_order[1], T_r_order_stderr=by_order_err[1])
+    if cfg.n_x:
+        cell = np.outer(np.diff(x_edges), np.diff(y_edges))
+        xy = t["xy"].reshape(cfg.n_x, cfg.n_y, 2)
+        kw.update(x_edges=x_edges, y_edges=y_edges, R_xy=xy[..., 0] / N / cell,
+                  R_xy_stderr=stderr_of_mean(xy[..., 0], xy[..., 1], N) / cell)
+    if cfg.n_path:
+        area = np.pi * np.diff(r_edges**2)[:, None]
+        rp = t["r_path"].reshape(cfg.n_r, cfg.n_path, 2)
+        kw.update(pathlength_edges=path_edges, R_r_path=rp[..., 0] / N / area,
+                  R_r_path_stderr=stderr_of_mean(rp[..., 0], rp[..., 1], N) / area)
+    return MCResult(**meta, **kw)

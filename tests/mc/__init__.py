@@ -1,0 +1,1 @@
+"""Tests of the Monte Carlo transport engine (jaxsss.mc)."""
