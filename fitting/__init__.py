@@ -1,8 +1,47 @@
-"""fitting: recover sigma_a and sigma_s' from measured or rendered data with Optimistix.
+"""fitting: recover sigma_a and sigma_s' from measured or simulated radial profiles with Optimistix.
 
-This package is installed with ``jaxsss`` and imports only its public API. The profile fits (issue 4) and the
-image fits (issue 5) land here; until then it exports nothing. The Rd -> alpha' inversion and the (Rd, l_d)
-reparameterisation are closed-form physics and live in :mod:`jaxsss.reflectance` and :mod:`jaxsss.reparam`.
+This package is installed with ``jaxsss`` and imports only its public API (``import jaxsss``).
+
+- :func:`fit_profile` / :func:`fit_profiles`: least-squares fits of R(r) and/or T(r) (absolute per incident photon,
+  or relative with a free scale), one compiled vmapped call for all channels and profiles, sharded over devices
+  when there are several; :class:`ProfileFit` holds estimates, standard errors, correlation and solver status.
+- :func:`fit_jacobian_wrt_data`: derivatives of the fitted parameters with respect to the data (implicit function
+  theorem).
+- Registries: :data:`FORWARD_MODELS` (``dipole``, ``multipole``; :func:`register_model` adds more) and
+  :data:`SOLVERS` (``levenberg_marquardt``, ``gauss_newton``, ``dogleg``).
+- I/O: :func:`read_profile_csv`, :func:`load_profile_npy`, :func:`read_profile` -> :class:`ProfileData`.
+
+The Rd -> alpha' inversion and the (Rd, l_d) reparameterisation are closed-form physics and live in
+:mod:`jaxsss.reflectance` and :mod:`jaxsss.reparam`. Image fits (issue 5) will land here too.
 """
 
-__all__: list[str] = []
+import jaxsss  # noqa: F401  (float64 before anything else)
+from fitting.io import COLUMNS, ProfileData, ProfileFileError, load_profile_npy, read_profile, read_profile_csv
+from fitting.models import FORWARD_MODELS, ForwardModel, entry_transmittance, register_model, resolve_model
+from fitting.profile_fit import FitWarning, fit_jacobian_wrt_data, fit_profile, fit_profiles
+from fitting.result import CONDITION_LIMIT, CORRELATION_LIMIT, ProfileFit
+from fitting.solvers import SOLVERS, LeastSquaresSolver, resolve_solver
+
+__all__ = [
+    "COLUMNS",
+    "CONDITION_LIMIT",
+    "CORRELATION_LIMIT",
+    "FORWARD_MODELS",
+    "FitWarning",
+    "ForwardModel",
+    "LeastSquaresSolver",
+    "ProfileData",
+    "ProfileFileError",
+    "ProfileFit",
+    "SOLVERS",
+    "entry_transmittance",
+    "fit_jacobian_wrt_data",
+    "fit_profile",
+    "fit_profiles",
+    "load_profile_npy",
+    "read_profile",
+    "read_profile_csv",
+    "register_model",
+    "resolve_model",
+    "resolve_solver",
+]

@@ -13,12 +13,12 @@ from __future__ import annotations
 
 import sys
 
-from jaxsss.cli import mc, profile, reparam, run
+from jaxsss.cli import fit, mc, profile, reparam, run
 from jaxsss.cli._common import PROG, UNITS_EPILOG, CLIError, Parser, report_error
 
 __all__ = ["COMMANDS", "build_parser", "main"]
 
-COMMANDS = (reparam, profile, mc, run)
+COMMANDS = (reparam, profile, mc, fit, run)
 """Subcommand modules; each provides ``add_parser(subparsers)`` which sets ``run(args) -> int`` as a default."""
 
 

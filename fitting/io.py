@@ -1,0 +1,238 @@
+"""Reading measured or simulated radial profiles: CSV (the ``jaxsss mc`` format) and NumPy files.
+
+CSV format: columns ``r_mm, R[, R_stderr][, T, T_stderr]``, comma-separated, one radius per line, ``#`` starts a
+comment (whole line or trailing), blank lines are ignored. An optional header line names the columns (any order
+after ``r_mm``; names are case-insensitive apart from ``R``, and ``r [mm]`` is accepted for ``r_mm``). Without a header the column count
+decides: 2 = ``r, R``; 3 = ``r, R, R_stderr``; 4 = ``r, R, T, T_stderr``; 5 = all. Units: ``r`` in mm; ``R``, ``T``
+and their standard errors in 1/mm^2 (absolute profiles per incident photon) or arbitrary units (relative).
+
+Checks: every cell numeric and finite, ``r >= 0`` and strictly increasing, standard errors ``> 0``, no missing or
+extra cells. A bad file raises :class:`ProfileFileError` (a ``ValueError``) naming the file, line and column.
+
+NumPy: a ``.npy`` array of shape ``(N, k)`` with the same column layout as a header-less CSV, or a ``.npz`` with
+arrays named ``r_mm``, ``R``, ``R_stderr``, ``T``, ``T_stderr``; errors name the file, row and column.
+"""
+
+from __future__ import annotations
+
+import math
+from pathlib import Path
+from typing import NamedTuple
+
+import numpy as np
+
+__all__ = ["COLUMNS", "ProfileData", "ProfileFileError", "load_profile_npy", "read_profile", "read_profile_csv"]
+
+COLUMNS = ("r_mm", "R", "R_stderr", "T", "T_stderr")
+"""Column names, in file order."""
+
+_BY_COUNT = {
+    2: ("r_mm", "R"),
+    3: ("r_mm", "R", "R_stderr"),
+    4: ("r_mm", "R", "T", "T_stderr"),
+    5: COLUMNS,
+}
+_ALIASES = {"r_mm": "r_mm", "r[mm]": "r_mm", "r [mm]": "r_mm", "r (mm)": "r_mm"}
+
+
+def _canonical(name: str):
+    """The column called ``name``: exact, then case-insensitive (``R`` and ``r`` differ: the radius is ``r_mm``)."""
+    if name in COLUMNS:
+        return name
+    return _ALIASES.get(name.lower(), next((c for c in COLUMNS[1:] if c.lower() == name.lower()), None))
+
+
+class ProfileFileError(ValueError):
+    """A profile file that cannot be read; the message names the file, line (or row) and column."""
+
+
+class ProfileData(NamedTuple):
+    """One radial profile: radii (mm) and the measured ``R`` and/or ``T`` (shape ``(N,)`` each), with optional
+    per-point standard errors; ``source`` names where it came from (a path, or ``"<array>"``)."""
+
+    r: np.ndarray
+    R: np.ndarray | None = None
+    R_stderr: np.ndarray | None = None
+    T: np.ndarray | None = None
+    T_stderr: np.ndarray | None = None
+    source: str = "<array>"
+
+
+def _parse_header(cells, path, line_no):
+    names = []
+    for col, cell in enumerate(cells, start=1):
+        key = cell.strip()
+        canon = _canonical(key)
+        if canon is None:
+            raise ProfileFileError(
+                f"{path}: line {line_no}, column {col}: unknown column name {key!r}; allowed: {', '.join(COLUMNS)}"
+            )
+        if canon in names:
+            raise ProfileFileError(f"{path}: line {line_no}, column {col}: column {canon!r} appears twice")
+        names.append(canon)
+    _check_layout(names, path, f"line {line_no}")
+    return tuple(names)
+
+
+def _check_layout(names, path, where):
+    if names[0] != "r_mm":
+        raise ProfileFileError(f"{path}: {where}, column 1: the first column must be r_mm (radius, mm), got {names[0]!r}")
+    if "R" not in names and "T" not in names:
+        raise ProfileFileError(f"{path}: {where}: missing column R (or T): a profile needs R and/or T")
+    for se, value in (("R_stderr", "R"), ("T_stderr", "T")):
+        if se in names and value not in names:
+            raise ProfileFileError(f"{path}: {where}: column {se} without column {value}")
+
+
+def _is_numeric(text: str) -> bool:
+    try:
+        float(text)
+    except ValueError:
+        return False
+    return True
+
+
+def _validate_columns(columns: dict, locate, path) -> None:
+    """Physical checks shared by CSV and NumPy input. ``locate(i, name) -> 'line L, column C (name)'``."""
+    r = columns["r_mm"]
+    for name, values in columns.items():
+        bad = ~np.isfinite(values)
+        if bad.any():
+            i = int(np.argmax(bad))
+            raise ProfileFileError(f"{path}: {locate(i, name)}: value {values[i]!r} is not a finite number")
+        if name.endswith("_stderr") and (values <= 0).any():
+            i = int(np.argmax(values <= 0))
+            raise ProfileFileError(f"{path}: {locate(i, name)}: standard error {values[i]:g} must be > 0")
+    if (r < 0).any():
+        i = int(np.argmax(r < 0))
+        raise ProfileFileError(f"{path}: {locate(i, 'r_mm')}: negative radius {r[i]:g} mm (allowed range [0, inf))")
+    if len(r) > 1 and (np.diff(r) <= 0).any():
+        i = int(np.argmax(np.diff(r) <= 0)) + 1
+        raise ProfileFileError(
+            f"{path}: {locate(i, 'r_mm')}: radius {r[i]:g} mm is not greater than the previous one {r[i - 1]:g} mm; "
+            "radii must be strictly increasing"
+        )
+    if len(r) < 2:
+        raise ProfileFileError(f"{path}: needs at least 2 radii, found {len(r)}")
+
+
+def read_profile_csv(path) -> ProfileData:
+    """Read a CSV profile (format in the module docstring); raise :class:`ProfileFileError` naming file, line, column."""
+    path = Path(path)
+    try:
+        text = path.read_text()
+    except OSError as err:
+        raise ProfileFileError(f"{path}: cannot read the file: {err.strerror or err}") from None
+    names = None
+    rows, line_of_row = [], []
+    for line_no, raw in enumerate(text.splitlines(), start=1):
+        line = raw.split("#", 1)[0].strip()
+        if not line:
+            continue
+        cells = [c.strip() for c in line.split(",")]
+        if names is None:
+            if not _is_numeric(cells[0]):  # the first line that is not a comment: a header, or data
+                names = _parse_header(cells, path, line_no)
+                continue
+            if len(cells) not in _BY_COUNT:
+                raise ProfileFileError(
+                    f"{path}: line {line_no}: {len(cells)} columns; expected 2 to 5 (r_mm, R[, R_stderr][, T, "
+                    "T_stderr]) or a header line naming them"
+                )
+            names = _BY_COUNT[len(cells)]
+        if len(cells) < len(names):
+            col = len(cells) + 1
+            raise ProfileFileError(f"{path}: line {line_no}, column {col} ({names[col - 1]}): missing value")
+        if len(cells) > len(names):
+            raise ProfileFileError(
+                f"{path}: line {line_no}, column {len(names) + 1}: extra value {cells[len(names)]!r} "
+                f"(the file has {len(names)} columns: {', '.join(names)})"
+            )
+        values = []
+        for col, (cell, name) in enumerate(zip(cells, names), start=1):
+            if cell == "":
+                raise ProfileFileError(f"{path}: line {line_no}, column {col} ({name}): missing value")
+            try:
+                v = float(cell)
+            except ValueError:
+                raise ProfileFileError(
+                    f"{path}: line {line_no}, column {col} ({name}): {cell!r} is not a number"
+                ) from None
+            if math.isnan(v) or math.isinf(v):
+                raise ProfileFileError(f"{path}: line {line_no}, column {col} ({name}): {cell!r} is not a finite number")
+            values.append(v)
+        rows.append(values)
+        line_of_row.append(line_no)
+    if names is None or not rows:
+        raise ProfileFileError(f"{path}: no data rows (expected lines of r_mm, R[, R_stderr][, T, T_stderr])")
+    table = np.asarray(rows, dtype=np.float64)
+    columns = {name: table[:, j] for j, name in enumerate(names)}
+
+    def locate(i, name):
+        return f"line {line_of_row[i]}, column {names.index(name) + 1} ({name})"
+
+    _validate_columns(columns, locate, path)
+    return _to_data(columns, str(path))
+
+
+def _to_data(columns: dict, source: str) -> ProfileData:
+    return ProfileData(
+        r=columns["r_mm"],
+        R=columns.get("R"),
+        R_stderr=columns.get("R_stderr"),
+        T=columns.get("T"),
+        T_stderr=columns.get("T_stderr"),
+        source=source,
+    )
+
+
+def load_profile_npy(path) -> ProfileData:
+    """Read a ``.npy`` (``(N, k)`` array, header-less CSV layout) or ``.npz`` (named arrays) profile."""
+    path = Path(path)
+    try:
+        loaded = np.load(path, allow_pickle=False)
+    except (OSError, ValueError) as err:
+        raise ProfileFileError(f"{path}: cannot read as a NumPy file: {err}") from None
+    if isinstance(loaded, np.ndarray):
+        arr = loaded
+        if arr.ndim != 2 or arr.shape[1] not in _BY_COUNT:
+            raise ProfileFileError(
+                f"{path}: array of shape {arr.shape}; expected (N, k) with k = 2..5 columns "
+                "(r_mm, R[, R_stderr][, T, T_stderr])"
+            )
+        if arr.dtype.kind not in "biuf":
+            raise ProfileFileError(f"{path}: array of dtype {arr.dtype} is not numeric")
+        names = _BY_COUNT[arr.shape[1]]
+        columns = {name: np.asarray(arr[:, j], dtype=np.float64) for j, name in enumerate(names)}
+    else:
+        with loaded:
+            keys = list(loaded.keys())
+            names = []
+            for key in keys:
+                canon = _canonical(key)
+                if canon is None:
+                    raise ProfileFileError(f"{path}: unknown array name {key!r}; allowed: {', '.join(COLUMNS)}")
+                names.append(canon)
+            if "r_mm" not in names:
+                raise ProfileFileError(f"{path}: missing array r_mm (radius, mm)")
+            names_sorted = sorted(names, key=COLUMNS.index)
+            _check_layout(names_sorted, path, "arrays")
+            raw = {canon: loaded[key] for key, canon in zip(keys, names)}
+        n = np.shape(raw["r_mm"])
+        for name, a in raw.items():
+            if np.ndim(a) != 1 or np.shape(a) != n or np.asarray(a).dtype.kind not in "biuf":
+                raise ProfileFileError(f"{path}: array {name} must be numeric of shape {n}, got {np.shape(a)}")
+        columns = {name: np.asarray(raw[name], dtype=np.float64) for name in names_sorted}
+        names = tuple(names_sorted)
+
+    def locate(i, name):
+        return f"row {i + 1}, column {list(columns).index(name) + 1} ({name})"
+
+    _validate_columns(columns, locate, path)
+    return _to_data(columns, str(path))
+
+
+def read_profile(path) -> ProfileData:
+    """Read a profile by file extension: ``.npy``/``.npz`` with :func:`load_profile_npy`, anything else as CSV."""
+    suffix = Path(path).suffix.lower()
+    return load_profile_npy(path) if suffix in (".npy", ".npz") else read_profile_csv(path)

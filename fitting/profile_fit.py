@@ -1,0 +1,449 @@
+"""Fit sigma_a and sigma_s' (per channel) to radial profiles R(r) and/or T(r) with Optimistix.
+
+Data and normalisation. Absolute profiles are per *incident* photon, in 1/mm^2 (:mod:`fitting.models`: the forward
+models multiply jaxsss's per-entering-flux profiles by ``1 - fresnel_reflectance(eta, 1.0)``). Relative profiles
+(``relative=True``) carry a free positive scale per channel.
+
+Unknowns: ``sigma_a`` and ``sigma_s'`` per channel (1/mm), fitted as logarithms; optionally the scale (relative
+data) and ``eta`` (``free_eta=True``; usually fixed). Channels and profiles are independent problems: one compiled,
+vmapped call solves all of them (and shards them over the devices when there are several).
+
+Fit range. By default the fit uses the radii ``r >= l_u`` (one transport mean free path ``1 / sigma_t'``) at the
+initial guess: within half a transport mean free path the dipole is 10-20x too low, and 10-30% high at 1-5
+(shared/reference/README.md, "How good the dipole is"). ``r_min``/``r_max`` override it. The result records the
+range and the reason.
+
+Weights: ``1 / stderr`` when standard errors are given, else relative residuals ``(model - data) / data`` (points
+with ``data <= 0`` are then left out).
+"""
+
+from __future__ import annotations
+
+import time
+import warnings
+from functools import lru_cache
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import optimistix as optx
+
+import jaxsss
+from fitting import _kernel as K
+from fitting.io import ProfileData
+from fitting.models import resolve_model
+from fitting.result import CONDITION_LIMIT, CORRELATION_LIMIT, ProfileFit
+from fitting.solvers import resolve_solver
+
+__all__ = ["FitWarning", "fit_jacobian_wrt_data", "fit_profile", "fit_profiles"]
+
+# Optimistix's Cauchy test on the log-parameters and the residual norm. 1e-10 recovers noise-free data to ~1e-13 (LM
+# converges superlinearly, so the last step is far above the final error); 1e-12 sits at the float64 rounding floor
+# of noisy problems and can stall until max_steps with an unchanged answer (seen on 1% noise, 30 radii).
+DEFAULT_RTOL = 1e-10
+DEFAULT_ATOL = 1e-10
+
+
+class FitWarning(UserWarning):
+    """A fit that did not converge, or whose data cannot separate the parameters."""
+
+
+# --- Boundary validation ------------------------------------------------------------------------------------------
+def _as_array(x, name, owner):
+    try:
+        arr = np.asarray(x, dtype=np.float64)
+    except (TypeError, ValueError):
+        raise TypeError(f"{owner}({name}=...): not a number or array of numbers") from None
+    if not np.all(np.isfinite(arr)):
+        bad = np.argwhere(~np.isfinite(arr))[0]
+        raise ValueError(f"{owner}({name}=...): element {tuple(int(i) for i in bad)} is {arr[tuple(bad)]}, not finite")
+    return arr
+
+
+class _Problem:
+    """The data normalised to ``P`` independent problems (profiles x channels) of ``K`` outputs and ``N`` radii."""
+
+    def __init__(self, owner, r, R, R_stderr, T, T_stderr, eta, thickness, model, batched, r_min, r_max):
+        self.owner = owner
+        r = _as_array(r, "r", owner)
+        if r.ndim != 1 or r.size < 2:
+            raise ValueError(f"{owner}(r=...): radii must be 1-D with at least 2 values, got shape {r.shape}")
+        if np.any(r < 0):
+            raise ValueError(f"{owner}(r={r[r < 0][0]:g}) is outside the allowed range [0, inf)")
+        if np.any(np.diff(r) <= 0):
+            i = int(np.argmax(np.diff(r) <= 0)) + 1
+            raise ValueError(f"{owner}(r=...): radii must be strictly increasing (r[{i}] = {r[i]:g} <= {r[i - 1]:g})")
+        N = r.size
+        given = {k: v for k, v in (("R", R), ("T", T)) if v is not None}
+        if not given:
+            raise ValueError(f"{owner}: give R and/or T (the measured profiles)")
+        for k in given:
+            if k not in model.outputs:
+                raise ValueError(
+                    f"{owner}(model={model.name!r}): the model predicts {', '.join(model.outputs)} only, not {k}; "
+                    "transmittance data need a slab model ('multipole')"
+                )
+        self.outputs = tuple(k for k in ("R", "T") if k in given)
+        ses = {"R": R_stderr, "T": T_stderr}
+        for k, v in ses.items():
+            if v is not None and k not in given:
+                raise ValueError(f"{owner}: {k}_stderr given without {k}")
+        arrays, stderrs = [], []
+        shape = None
+        for k in self.outputs:
+            a = _as_array(given[k], k, owner)
+            lead = 1 if batched else 0
+            if a.ndim not in (lead + 1, lead + 2) or a.shape[lead] != N:
+                want = "(B, N) or (B, N, C)" if batched else "(N,) or (N, C)"
+                raise ValueError(f"{owner}({k}=...): shape {a.shape}; expected {want} with N = len(r) = {N}")
+            if shape is not None and a.shape != shape:
+                raise ValueError(f"{owner}: R and T have different shapes {shape} and {a.shape}")
+            shape = a.shape
+            s = ses[k]
+            if s is not None:
+                s = _as_array(s, f"{k}_stderr", owner)
+                if s.shape != a.shape:
+                    raise ValueError(f"{owner}({k}_stderr=...): shape {s.shape} differs from {k}'s {a.shape}")
+                if np.any(s <= 0):
+                    raise ValueError(f"{owner}({k}_stderr={s[s <= 0].flat[0]:g}) is outside the allowed range (0, inf)")
+            arrays.append(a)
+            stderrs.append(s)
+        self.has_stderr = tuple(s is not None for s in stderrs)
+        # Canonical layout (B, N, C).
+        self.squeeze_channels = shape[-1] == N and len(shape) == (2 if batched else 1)
+        canon = lambda a: (a if batched else a[None]) if not self.squeeze_channels else (  # noqa: E731
+            (a if batched else a[None])[..., None])
+        Y = np.stack([canon(a) for a in arrays], axis=1)  # (B, K, N, C)
+        # Missing standard errors are stored as 0 (the kernel then weights by 1 / data).
+        S = np.stack([canon(s) if s is not None else np.zeros_like(canon(a)) for a, s in zip(arrays, stderrs)], axis=1)
+        B, Kn, _, C = Y.shape
+        self.batch_shape = ((B,) if batched else ()) + (() if self.squeeze_channels else (C,))
+        self.B, self.C, self.K, self.N = B, C, Kn, N
+        self.r = r
+        # Problems: (P, K, N) with P = B * C.
+        self.y = np.moveaxis(Y, 3, 1).reshape(B * C, Kn, N)
+        self.se = np.moveaxis(S, 3, 1).reshape(B * C, Kn, N)
+        self.eta = self._per_problem(eta, "eta", lo_open=0.0)
+        if model.needs_thickness:
+            if thickness is None:
+                raise ValueError(f"{owner}(model={model.name!r}) needs thickness=... (slab thickness, mm)")
+            self.d = self._per_problem(thickness, "thickness", lo_open=0.0)
+        else:
+            if thickness is not None:
+                raise ValueError(f"{owner}(thickness=...) applies to slab models only, not model={model.name!r}")
+            self.d = np.ones(B * C)
+        lo = -np.inf if r_min is None else float(_as_array(r_min, "r_min", owner))
+        hi = np.inf if r_max is None else float(_as_array(r_max, "r_max", owner))
+        if not lo < hi:
+            raise ValueError(f"{owner}(r_min={lo:g}, r_max={hi:g}): r_min must be below r_max")
+        self.r_lo, self.r_hi = np.full(B * C, lo), np.full(B * C, hi)
+        self.auto = np.full(B * C, r_min is None)
+        inside = (r >= lo) & (r <= hi)
+        if inside.sum() < 3:
+            raise ValueError(f"{owner}(r_min={lo:g}, r_max={hi:g}): only {int(inside.sum())} radii in range; need >= 3")
+
+    def _per_problem(self, x, name, lo_open):
+        arr = _as_array(x, name, self.owner)
+        if np.any(arr <= lo_open):
+            raise ValueError(f"{self.owner}({name}={arr[arr <= lo_open].flat[0]:g}) is outside the allowed range (0, inf)")
+        try:
+            full = np.broadcast_to(arr, (self.B, self.C))
+        except ValueError:
+            raise ValueError(
+                f"{self.owner}({name}=...): shape {arr.shape} does not broadcast to (profiles, channels) = "
+                f"{(self.B, self.C)}"
+            ) from None
+        return np.ascontiguousarray(full).reshape(-1)
+
+    def unflatten(self, x):
+        x = np.asarray(x)
+        return x.reshape((self.B, self.C) + x.shape[1:]).reshape(self.batch_shape + x.shape[1:])
+
+
+# --- Compiled, batched stages (one cache entry per static configuration) ------------------------------------------
+def _mesh(n_problems):
+    devices = jax.devices()
+    if len(devices) < 2 or n_problems < 2:
+        return None
+    # Auto axes: the inputs' placement is a hint for jit's partitioner (the code itself is unaware of sharding).
+    return jax.make_mesh((len(devices),), ("batch",), axis_types=(jax.sharding.AxisType.Auto,), devices=devices)
+
+
+@lru_cache(maxsize=64)
+def _compiled(stage: str, cfg: K.Config):
+    """The jitted, vmapped stage. Sharding needs no code of its own: :func:`_run` places the problem axis of the
+    inputs over a device mesh and jit's SPMD partitioner splits the computation accordingly."""
+    fn = {"data_guess": K.data_guess, "initial_guess": K.initial_guess, "solve": K.solve}[stage]
+
+    def batched(r, *per_problem):
+        if stage == "data_guess":
+            return jax.vmap(lambda *a: fn(r, *a, cfg))(*per_problem)
+        return jax.vmap(lambda *a: _call(fn, stage, r, a, cfg))(*per_problem)
+
+    return jax.jit(batched)
+
+
+def _call(fn, stage, r, a, cfg):
+    if stage == "initial_guess":
+        y, se, eta, d, r_lo, r_hi, auto, rd, ld = a
+        return fn(r, y, se, eta, d, r_lo, r_hi, auto, rd, ld, cfg)
+    theta0, mask, y, se, eta, d = a
+    return fn(theta0, mask, r, y, se, eta, d, cfg)
+
+
+def _bucket(n_problems: int, multiple: int) -> int:
+    """The padded problem count: a power of two up to 64 (at least 4), then a multiple of 64; and a multiple of
+    ``multiple`` (the device count). Few distinct shapes mean few compilations: one profile of 1-4 channels, or a
+    handful of profiles, all reuse one compiled fit; the padding costs at most 2x on tiny batches and < 1% on big ones."""
+    n = max(4, 1 << (n_problems - 1).bit_length()) if n_problems <= 64 else -(-n_problems // 64) * 64
+    return -(-n // multiple) * multiple
+
+
+def _run(stage, cfg, shard, r, *per_problem):
+    """Run a stage over all problems. The problem axis is padded (copies of the last problem, see :func:`_bucket`);
+    with several devices (and ``shard``) it is placed with a :class:`jax.sharding.NamedSharding` over a 1-D mesh
+    (``r`` replicated) and jit's SPMD partitioner splits the work. The batched solver loops only synchronise on their
+    common stopping test."""
+    P_ = per_problem[0].shape[0]
+    mesh = _mesh(P_) if shard in (None, True) else None
+    n_dev = 1 if mesh is None else mesh.size
+    pad = _bucket(P_, n_dev) - P_
+    if pad:
+        per_problem = tuple(jnp.concatenate([x, jnp.repeat(x[-1:], pad, axis=0)]) for x in per_problem)
+    r = jnp.asarray(r)
+    if mesh is not None:
+        from jax.sharding import NamedSharding
+        from jax.sharding import PartitionSpec as P
+
+        r = jax.device_put(r, NamedSharding(mesh, P()))
+        per_problem = tuple(jax.device_put(x, NamedSharding(mesh, P("batch"))) for x in per_problem)
+    out = _compiled(stage, cfg)(r, *per_problem)
+    if mesh is not None:  # gather to the host (the next stage reshards)
+        out = jax.tree_util.tree_map(lambda x: jnp.asarray(np.asarray(x)), out)
+    return jax.tree_util.tree_map(lambda x: x[:P_], out)  # drop the padding
+
+
+# --- Public entry points ------------------------------------------------------------------------------------------
+def _unpack_data(r, R, R_stderr, T, T_stderr):
+    if isinstance(r, ProfileData):
+        if any(x is not None for x in (R, R_stderr, T, T_stderr)):
+            raise ValueError("fit_profile(ProfileData, ...): do not also pass R/T arrays")
+        return r.r, r.R, r.R_stderr, r.T, r.T_stderr
+    return r, R, R_stderr, T, T_stderr
+
+
+def _prepare_static(model, problem, sa, ss, eta, fresnel, notes):
+    """The model's static setting for the given (concrete) parameters of every problem; if the model cannot settle
+    one (e.g. the multipole's pair count for an almost non-absorbing slab), its ``static_cap`` with a note."""
+    medium = jaxsss.Medium(np.asarray(sa), np.asarray(ss), np.asarray(eta), fresnel=fresnel)
+    try:
+        return model.prepare(problem.r, medium, problem.d)
+    except ValueError as err:
+        note = f"{model.name}: static setting capped at {model.static_cap} ({' '.join(str(err).split())})"
+        if note not in notes:
+            notes.append(note)
+        return model.static_cap
+
+
+def _fit(owner, batched, r, R, R_stderr, T, T_stderr, *, eta, model, thickness, relative, free_eta, r_min, r_max,
+         solver, rtol, atol, max_steps, fresnel, warn, shard=None):
+    t0 = time.perf_counter()
+    model = resolve_model(model)
+    resolve_solver(solver)
+    jaxsss.F_dr(1.5, fresnel)  # validates the F_dr method name (lists the valid ones)
+    r, R, R_stderr, T, T_stderr = _unpack_data(r, R, R_stderr, T, T_stderr)
+    pb = _Problem(owner, r, R, R_stderr, T, T_stderr, eta, thickness, model, batched, r_min, r_max)
+    if not (isinstance(max_steps, int) and max_steps >= 1):
+        raise ValueError(f"{owner}(max_steps={max_steps!r}) must be an int >= 1")
+    cfg = K.Config(model=model.name, static=None, outputs=pb.outputs,
+                   relative=bool(relative), free_eta=bool(free_eta), solver=solver,
+                   rtol=float(rtol), atol=float(atol), max_steps=int(max_steps), fresnel=fresnel)
+    y, se, eta_p, d = (jnp.asarray(a) for a in (pb.y, pb.se, pb.eta, pb.d))
+    r_lo, r_hi = jnp.asarray(pb.r_lo), jnp.asarray(pb.r_hi)
+    notes = []
+    # Stage 1: Rd and l_d from the data.
+    rd, ld, rd_clamped, slope_failed = _run("data_guess", cfg, shard, pb.r, y, se, eta_p, r_lo, r_hi)
+    if np.any(rd_clamped):
+        notes.append(f"initial guess: the profile's plane integral gave Rd outside {K.RD_CLAMP} for "
+                     f"{int(np.sum(rd_clamped))} fit(s); clamped into that range")
+    if np.any(slope_failed):
+        notes.append(f"initial guess: no usable far-field decay for {int(np.sum(slope_failed))} fit(s); l_d set to "
+                     "the span of the radii")
+    # Stage 2: the start and the fit range. Models with a static setting rank the candidates with a fixed, cheap one
+    # (ranking needs no precision, and a fixed value means one compilation for every data set).
+    if model.prepare is not None:
+        cfg = cfg._replace(static=model.guess_static)
+    theta0, mask, r_cut, fallback = _run("initial_guess", cfg, shard, pb.r, y, se, eta_p, d, r_lo, r_hi,
+                                              jnp.asarray(pb.auto), rd, ld)
+    if np.any(fallback):
+        notes.append(f"fit range: fewer than {cfg.n_params + 1} points beyond r_min for {int(np.sum(fallback))} "
+                     "fit(s); all radii in [r_min, r_max] used there")
+    # Stage 3: solve; for models with a static setting, re-solve if the solution needs a larger one.
+    # The static setting is chosen at the start with a factor 2 margin (the solution usually needs no more, so one
+    # compilation serves); if the solution needs more, solve again from it and add the iterations.
+    iterations = 0
+    start = theta0
+    for attempt in range(3):
+        if model.prepare is not None:
+            need = _prepare_static(model, pb, jnp.exp(start[:, 0]), jnp.exp(start[:, 1]), eta_p, fresnel, notes)
+            cfg = cfg._replace(static=min(max(2 * need, cfg.static if attempt else 0), model.static_cap))
+        out = _run("solve", cfg, shard, pb.r, start, mask, y, se, eta_p, d)
+        iterations = iterations + out["iterations"]
+        if model.prepare is None:
+            break
+        need = _prepare_static(model, pb, out["sigma_a"], out["sigma_s_prime"], out["eta"], fresnel, notes)
+        if need <= cfg.static:
+            break
+        start = _theta(out, cfg)
+    out["iterations"] = iterations
+    out = jax.block_until_ready(out)
+    seconds = time.perf_counter() - t0
+
+    if r_min is None:
+        reason = ("default: r >= l_u = 1/sigma_t' at the initial guess (diffusion is 10-20x off within half a "
+                  "transport mean free path of the source)")
+    else:
+        reason = f"user: r_min = {float(r_min):g} mm"
+    reason += "; " + ("r_max = all radii" if r_max is None else f"r_max = {float(r_max):g} mm")
+    if not all(pb.has_stderr):
+        reason += "; points with data <= 0 left out (relative weights)"
+    corr = np.asarray(out["correlation"])
+    cond = np.asarray(out["condition_number"])
+    identifiable = (np.abs(corr) <= CORRELATION_LIMIT) & (cond <= CONDITION_LIMIT)
+    u = pb.unflatten
+    zeros = np.zeros(pb.B * pb.C)
+    res = ProfileFit(
+        sigma_a=u(out["sigma_a"]), sigma_s_prime=u(out["sigma_s_prime"]),
+        sigma_a_stderr=u(out["sigma_a_stderr"]), sigma_s_prime_stderr=u(out["sigma_s_prime_stderr"]),
+        correlation=u(corr), scale=u(out["scale"]), scale_stderr=u(out.get("scale_stderr", zeros)),
+        eta=u(out["eta"]), eta_stderr=u(out.get("eta_stderr", zeros)), residual_norm=u(out["residual_norm"]),
+        reduced_chi2=u(out["reduced_chi2"]), n_points=u(out["n_points"]), r_min=u(out["r_min"]),
+        r_max=u(out["r_max"]), r_cut=u(r_cut), iterations=u(out["iterations"]),
+        result=jax.tree_util.tree_map(u, out["result"]), condition_number=u(cond), identifiable=u(identifiable),
+        guess_sigma_a=u(np.exp(theta0[:, 0])), guess_sigma_s_prime=u(np.exp(theta0[:, 1])),
+        thickness=u(pb.d) if model.needs_thickness else None, model=model.name, solver=solver,
+        outputs=pb.outputs, relative=bool(relative), free_eta=bool(free_eta), range_reason=reason,
+        notes=tuple(notes), seconds=seconds, static=cfg.static, fresnel=fresnel,
+    )
+    if warn:
+        for text in res.warnings:
+            warnings.warn(text, FitWarning, stacklevel=3)
+    return res
+
+
+def _theta(out, cfg):
+    cols = [jnp.log(out["sigma_a"]), jnp.log(out["sigma_s_prime"])]
+    if cfg.relative:
+        cols.append(jnp.log(out["scale"]))
+    if cfg.free_eta:
+        cols.append(jnp.log(out["eta"]))
+    return jnp.stack(cols, axis=1)
+
+
+_DOC_ARGS = """
+    Args:
+        r: radii, mm, 1-D, ``>= 0`` and strictly increasing (shared by every profile and channel); or a
+            :class:`fitting.ProfileData` (then leave R/T out).
+        R, T: measured reflectance / transmittance profiles, 1/mm^2 per incident photon (absolute) or any unit
+            (``relative=True``). {shape}
+        R_stderr, T_stderr: optional per-point standard errors (same shape, ``> 0``): weights ``1 / stderr``.
+            Without them the residuals are relative, ``(model - data) / data``.
+        eta: relative index ``n_inside / n_outside`` (``> 0``), scalar or broadcasting to {eta_shape}. Fixed unless
+            ``free_eta``.
+        model: forward model name (:data:`fitting.FORWARD_MODELS`: ``"dipole"``, ``"multipole"``).
+        thickness: slab thickness, mm (models that need it only), broadcasting like ``eta``.
+        relative: the data carry an unknown positive scale, fitted per channel.
+        free_eta: also fit ``eta`` (per channel).
+        r_min, r_max: fit range in mm. Default ``r_min``: one transport mean free path ``l_u`` at the initial
+            guess; default ``r_max``: all radii.
+        solver: :data:`fitting.SOLVERS` name (``"levenberg_marquardt"``, ``"gauss_newton"``, ``"dogleg"``).
+        rtol, atol: solver tolerances (on the log-parameters and the residual norm).
+        max_steps: iteration cap; fits that hit it report ``converged = False``.
+        fresnel: ``F_dr`` method of the models (``"poly"`` or ``"exact"``).
+        warn: emit :class:`FitWarning` for non-converged or non-identifiable fits (the flags are in the result
+            either way).
+
+    Returns:
+        :class:`fitting.ProfileFit`.
+"""
+
+
+def fit_profile(r, R=None, *, T=None, R_stderr=None, T_stderr=None, eta, model="dipole", thickness=None,
+                relative=False, free_eta=False, r_min=None, r_max=None, solver="levenberg_marquardt",
+                rtol=DEFAULT_RTOL, atol=DEFAULT_ATOL, max_steps=256, fresnel="poly", warn=True) -> ProfileFit:
+    """Fit ``sigma_a`` and ``sigma_s'`` to one profile (all its channels in one compiled call)."""
+    return _fit("fit_profile", False, r, R, R_stderr, T, T_stderr, eta=eta, model=model, thickness=thickness,
+                relative=relative, free_eta=free_eta, r_min=r_min, r_max=r_max, solver=solver, rtol=rtol, atol=atol,
+                max_steps=max_steps, fresnel=fresnel, warn=warn)
+
+
+def fit_profiles(r, R=None, *, T=None, R_stderr=None, T_stderr=None, eta, model="dipole", thickness=None,
+                 relative=False, free_eta=False, r_min=None, r_max=None, solver="levenberg_marquardt",
+                 rtol=DEFAULT_RTOL, atol=DEFAULT_ATOL, max_steps=256, fresnel="poly", warn=True,
+                 shard=None) -> ProfileFit:
+    """Fit a batch of profiles on one radius grid in one compiled, vmapped call.
+
+    With several JAX devices (``jax.devices()``) the problems (profiles x channels) are split over a 1-D mesh with
+    a :class:`jax.sharding.NamedSharding` on the inputs (padded to a multiple of the device count) and jit's SPMD
+    partitioner; the devices only agree on when the batched solver loop stops. ``shard=False`` keeps everything on one device; ``None`` (default) shards when possible.
+    """
+    return _fit("fit_profiles", True, r, R, R_stderr, T, T_stderr, eta=eta, model=model, thickness=thickness,
+                relative=relative, free_eta=free_eta, r_min=r_min, r_max=r_max, solver=solver, rtol=rtol, atol=atol,
+                max_steps=max_steps, fresnel=fresnel, warn=warn, shard=shard)
+
+
+fit_profile.__doc__ += _DOC_ARGS.format(shape="Shape ``(N,)`` or ``(N, C)`` for ``C`` channels.",
+                                        eta_shape="``(C,)``")
+fit_profiles.__doc__ += _DOC_ARGS.format(shape="Shape ``(B, N)`` or ``(B, N, C)`` for ``B`` profiles.",
+                                         eta_shape="``(B, C)``").replace(
+    "    Returns:", "        shard: see above.\n\n    Returns:")
+
+
+def fit_jacobian_wrt_data(r, R=None, *, T=None, R_stderr=None, T_stderr=None, eta, model="dipole", thickness=None,
+                          relative=False, r_min=None, r_max=None, solver="levenberg_marquardt", rtol=DEFAULT_RTOL,
+                          atol=DEFAULT_ATOL, max_steps=256, fresnel="poly"):
+    """Derivatives of the fitted ``(sigma_a, sigma_s')`` with respect to the data, by the implicit function theorem.
+
+    The fit (same arguments as :func:`fit_profile`, one profile) is solved with :func:`optimistix.least_squares`
+    and its implicit adjoint; the fit range and start are held fixed (they are discrete choices). Linear error
+    propagation follows: ``cov(theta) ~ J_data cov(data) J_data^T``.
+
+    Returns:
+        ``{"R": dR, "T": dT}`` for the outputs given, each of shape ``(*channels, 2, N)``: ``[..., 0, i]`` is
+        ``d sigma_a / d data_i`` and ``[..., 1, i]`` is ``d sigma_s' / d data_i`` (1/mm per data unit). Channels are
+        independent, so cross-channel derivatives are zero and not returned.
+    """
+    fit = fit_profile(r, R, T=T, R_stderr=R_stderr, T_stderr=T_stderr, eta=eta, model=model, thickness=thickness,
+                      relative=relative, r_min=r_min, r_max=r_max, solver=solver, rtol=rtol, atol=atol,
+                      max_steps=max_steps, fresnel=fresnel, warn=False)
+    mdl = resolve_model(model)
+    r_, R_, Rs_, T_, Ts_ = _unpack_data(r, R, R_stderr, T, T_stderr)
+    pb = _Problem("fit_jacobian_wrt_data", r_, R_, Rs_, T_, Ts_, eta, thickness, mdl, False, r_min, r_max)
+    cfg = K.Config(model=mdl.name, static=fit.static, outputs=pb.outputs,
+                   relative=bool(relative), free_eta=False, solver=solver,
+                   rtol=float(rtol), atol=float(atol), max_steps=int(max_steps), fresnel=fresnel)
+    flat = lambda x: jnp.reshape(jnp.asarray(x), (-1,))  # noqa: E731
+    cols = [jnp.log(flat(fit.sigma_a)), jnp.log(flat(fit.sigma_s_prime))]
+    if relative:
+        cols.append(jnp.log(flat(fit.scale)))
+    theta0 = jnp.stack(cols, axis=1)
+    # The fit range the fit used, rebuilt from its recorded cut (held fixed under differentiation).
+    y, se = jnp.asarray(pb.y), jnp.asarray(pb.se)
+    _, usable = jax.vmap(lambda a, b: K.weights(a, b, cfg))(y, se)
+    rr = jnp.asarray(pb.r)
+    inside = (rr >= jnp.asarray(pb.r_lo)[:, None]) & (rr <= jnp.asarray(pb.r_hi)[:, None])
+    cut = flat(fit.r_cut)
+    mask = usable & (inside & (rr[None, :] >= jnp.minimum(cut, flat(fit.r_min))[:, None]))[:, None, :]
+
+    def params(y_all):
+        return jax.vmap(lambda th, m, yy, s, e, d: K.solve_params(th, m, rr, yy, s, e, d, cfg))(
+            theta0, mask, y_all, se, jnp.asarray(pb.eta), jnp.asarray(pb.d))
+
+    jac = jax.jacfwd(params)(y)  # (P, 2, P, K, N)
+    P_ = y.shape[0]
+    diag = jac[jnp.arange(P_), :, jnp.arange(P_)]  # (P, 2, K, N)
+    out = {}
+    for k, name in enumerate(pb.outputs):
+        block = np.asarray(diag[:, :, k, :])
+        out[name] = block.reshape(pb.batch_shape[-1:] + (2, pb.N)) if pb.batch_shape else block[0]
+    return out

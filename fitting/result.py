@@ -1,0 +1,241 @@
+"""The result of a profile fit: estimates, standard errors, the solver's status, the range used; a table and JSON."""
+
+from __future__ import annotations
+
+import json
+import math
+
+import equinox as eqx
+import jax
+import numpy as np
+import optimistix as optx
+
+__all__ = ["CORRELATION_LIMIT", "CONDITION_LIMIT", "ProfileFit"]
+
+CORRELATION_LIMIT = 0.999
+"""``|corr(sigma_a, sigma_s')|`` above this: the data do not separate the two parameters. Well-posed fits of absolute
+profiles with relative weights sit at about 0.95-0.995 (the far field fixes sigma_tr much better than the albedo), so
+the limit is 0.999 rather than 0.99; relative far-field data reach 0.9999 and more."""
+CONDITION_LIMIT = 1e5
+"""Condition number of the normalised (unit-diagonal) ``J^T J`` above this: some combination of the free parameters
+is not determined by the data (e.g. scale and albedo of relative far-field data). For two parameters it is about
+``2 / (1 - |corr|)``."""
+
+
+def _message(result, index) -> str:
+    item = jax.tree_util.tree_map(lambda x: jax.numpy.asarray(np.asarray(x)[index]), result)
+    if bool(item == optx.RESULTS.successful):
+        return "converged"
+    text = optx.RESULTS[item]
+    return "converged" if not text else " ".join(text.split())
+
+
+class ProfileFit(eqx.Module):
+    """Result of :func:`fitting.fit_profile` / :func:`fitting.fit_profiles`.
+
+    Arrays have the fit's batch shape: ``()`` for one single-channel profile, ``(C,)`` for ``C`` channels, ``(B,)`` or
+    ``(B, C)`` for a batch. Units: 1/mm for coefficients, mm for radii.
+
+    Attributes:
+        sigma_a, sigma_s_prime: estimates (1/mm).
+        sigma_a_stderr, sigma_s_prime_stderr: standard errors from ``J^T J`` at the solution scaled by the residual
+            variance ``SSR / (n - p)``, mapped from the log-parameters (``se(x) = x se(log x)``); ``inf`` when
+            ``J^T J`` is singular.
+        correlation: correlation of the ``sigma_a`` and ``sigma_s'`` estimates (in log-parameters).
+        scale, scale_stderr: the free scale of relative data (1 and 0 for absolute data).
+        eta, eta_stderr: relative index (fixed: the given value and 0).
+        residual_norm: ``sqrt(SSR)`` of the weighted residuals in the fit range; ``reduced_chi2 = SSR / (n - p)``.
+        n_points: points in the fit range; ``r_min``, ``r_max``: the smallest and largest radius fitted (mm).
+        r_cut: the threshold ``r >= r_cut`` applied (``l_u`` at the initial guess by default, else the user's r_min).
+        iterations: solver steps; ``result``: ``optimistix.RESULTS`` per fit (see :attr:`converged`, :meth:`messages`).
+        condition_number: of the normalised ``J^T J``; ``identifiable``: ``|correlation| <= CORRELATION_LIMIT`` and
+            ``condition_number <= CONDITION_LIMIT``.
+        guess_sigma_a, guess_sigma_s_prime: the initial guess.
+        thickness: slab thickness (mm) or ``None``.
+        model, solver, outputs, relative, free_eta, range_reason, notes, seconds, static: what was run (static).
+    """
+
+    sigma_a: jax.Array
+    sigma_s_prime: jax.Array
+    sigma_a_stderr: jax.Array
+    sigma_s_prime_stderr: jax.Array
+    correlation: jax.Array
+    scale: jax.Array
+    scale_stderr: jax.Array
+    eta: jax.Array
+    eta_stderr: jax.Array
+    residual_norm: jax.Array
+    reduced_chi2: jax.Array
+    n_points: jax.Array
+    r_min: jax.Array
+    r_max: jax.Array
+    r_cut: jax.Array
+    iterations: jax.Array
+    result: optx.RESULTS
+    condition_number: jax.Array
+    identifiable: jax.Array
+    guess_sigma_a: jax.Array
+    guess_sigma_s_prime: jax.Array
+    thickness: jax.Array | None
+    model: str = eqx.field(static=True)
+    solver: str = eqx.field(static=True)
+    outputs: tuple = eqx.field(static=True)
+    relative: bool = eqx.field(static=True)
+    free_eta: bool = eqx.field(static=True)
+    range_reason: str = eqx.field(static=True)
+    notes: tuple = eqx.field(static=True)
+    seconds: float = eqx.field(static=True)
+    static: object = eqx.field(static=True, default=None)
+    fresnel: str = eqx.field(static=True, default="poly")
+
+    @property
+    def shape(self) -> tuple:
+        return tuple(np.shape(self.sigma_a))
+
+    @property
+    def converged(self):
+        """Boolean array: the solver reported success for each fit."""
+        return np.asarray(self.result == optx.RESULTS.successful)
+
+    def messages(self) -> list[str]:
+        """The solver's status message per fit (flattened), ``"converged"`` on success."""
+        return [_message(self.result, idx) for idx in np.ndindex(self.shape)]
+
+    @property
+    def warnings(self) -> list[str]:
+        """Human-readable warnings: fits that did not converge, parameters the data cannot separate."""
+        out = []
+        conv = self.converged.reshape(-1)
+        if not conv.all():
+            msgs = self.messages()
+            bad = [i for i in range(conv.size) if not conv[i]]
+            out.append(f"{len(bad)} of {conv.size} fits did not converge (first: fit {bad[0]}: {msgs[bad[0]]})")
+        ident = np.asarray(self.identifiable).reshape(-1)
+        if not ident.all():
+            corr = np.asarray(self.correlation).reshape(-1)
+            cond = np.asarray(self.condition_number).reshape(-1)
+            i = int(np.argmin(ident))
+            out.append(
+                f"{int((~ident).sum())} of {ident.size} fits cannot separate the parameters (first: fit {i}: "
+                f"corr(sigma_a, sigma_s') = {corr[i]:.4f}, cond(J^T J) = {cond[i]:.3g}); the data fix only a "
+                "combination such as sigma_tr -- add absolute calibration, near-field radii, or fix a parameter"
+            )
+        return out
+
+    def predict(self, r):
+        """The fitted model at radii ``r`` (mm, 1-D): ``{"R": ..., "T": ...}`` with the scale applied, each of shape
+        ``(*self.shape, len(r))``, per incident photon (or in the data's units for relative fits)."""
+        import jax.numpy as jnp
+
+        from fitting.models import model_profiles, resolve_model
+
+        model = resolve_model(self.model)
+        r = jnp.asarray(np.asarray(r, dtype=np.float64))
+        flat = lambda x: jnp.reshape(jnp.broadcast_to(jnp.asarray(x), self.shape), (-1,))  # noqa: E731
+        d = flat(1.0 if self.thickness is None else self.thickness)
+
+        def one(sa, ss, eta, dd, scale):
+            prof = model_profiles(model, r, sa, ss, eta, dd, self.static, fresnel=self.fresnel)
+            return {k: scale * v for k, v in prof.items()}
+
+        out = jax.vmap(one)(flat(self.sigma_a), flat(self.sigma_s_prime), flat(self.eta), d, flat(self.scale))
+        return {k: np.asarray(v).reshape(self.shape + (len(r),)) for k, v in out.items()}
+
+    # --- Output -------------------------------------------------------------------------------------------------
+    def to_dict(self) -> dict:
+        """JSON-ready dict: arrays as (nested) lists of the batch shape, scalars for a single fit; non-finite -> None."""
+
+        def val(x):
+            arr = np.asarray(x, dtype=np.float64)
+            if arr.ndim == 0:
+                v = float(arr)
+                return v if math.isfinite(v) else None
+            return [val(a) for a in arr]
+
+        def ints(x):
+            return np.asarray(x).astype(int).tolist()
+
+        d = {
+            "model": self.model,
+            "solver": self.solver,
+            "outputs": list(self.outputs),
+            "relative": self.relative,
+            "sigma_a": val(self.sigma_a),
+            "sigma_s_prime": val(self.sigma_s_prime),
+            "sigma_a_stderr": val(self.sigma_a_stderr),
+            "sigma_s_prime_stderr": val(self.sigma_s_prime_stderr),
+            "correlation": val(self.correlation),
+            "converged": np.asarray(self.converged).tolist(),
+            "message": self.messages() if self.shape else self.messages()[0],
+            "iterations": ints(self.iterations),
+            "seconds": float(self.seconds),
+            "identifiable": np.asarray(self.identifiable).tolist(),
+            "condition_number": val(self.condition_number),
+            "residual_norm": val(self.residual_norm),
+            "reduced_chi2": val(self.reduced_chi2),
+            "n_points": ints(self.n_points),
+            "r_min": val(self.r_min),
+            "r_max": val(self.r_max),
+            "r_cut": val(self.r_cut),
+            "range_reason": self.range_reason,
+            "eta": val(self.eta),
+            "guess_sigma_a": val(self.guess_sigma_a),
+            "guess_sigma_s_prime": val(self.guess_sigma_s_prime),
+            "notes": list(self.notes),
+            "warnings": self.warnings,
+        }
+        if self.relative:
+            d["scale"], d["scale_stderr"] = val(self.scale), val(self.scale_stderr)
+        if self.free_eta:
+            d["eta_stderr"] = val(self.eta_stderr)
+        if self.thickness is not None:
+            d["thickness"] = val(self.thickness)
+        if self.static is not None:
+            d["model_static"] = self.static
+        return d
+
+    def to_json(self, **kwargs) -> str:
+        """Strict JSON (no NaN/Infinity tokens) of :meth:`to_dict`."""
+        return json.dumps(self.to_dict(), allow_nan=False, **kwargs)
+
+    def __str__(self) -> str:
+        shape = self.shape
+        flat = {k: np.asarray(getattr(self, k)).reshape(-1) for k in (
+            "sigma_a", "sigma_a_stderr", "sigma_s_prime", "sigma_s_prime_stderr", "correlation", "scale", "eta",
+            "iterations", "r_min", "r_max", "n_points", "reduced_chi2")}
+        conv = self.converged.reshape(-1)
+        n = conv.size
+        header = ["fit", "sigma_a [1/mm]", "+-", "sigma_s' [1/mm]", "+-", "corr"]
+        if self.relative:
+            header.append("scale")
+        if self.free_eta:
+            header.append("eta")
+        header += ["r range [mm]", "points", "iters", "status"]
+        labels = [",".join(map(str, idx)) if idx else "-" for idx in np.ndindex(shape)] if shape else ["-"]
+        rows = []
+        shown = list(range(min(n, 20)))
+        for i in shown:
+            row = [labels[i], f"{flat['sigma_a'][i]:.6g}", f"{flat['sigma_a_stderr'][i]:.2g}",
+                   f"{flat['sigma_s_prime'][i]:.6g}", f"{flat['sigma_s_prime_stderr'][i]:.2g}",
+                   f"{flat['correlation'][i]:+.3f}"]
+            if self.relative:
+                row.append(f"{flat['scale'][i]:.5g}")
+            if self.free_eta:
+                row.append(f"{flat['eta'][i]:.5g}")
+            row += [f"{flat['r_min'][i]:.4g}-{flat['r_max'][i]:.4g}", str(int(flat["n_points"][i])),
+                    str(int(flat["iterations"][i])), "converged" if conv[i] else "NOT CONVERGED"]
+            rows.append(row)
+        widths = [max(len(h), *(len(r[j]) for r in rows)) for j, h in enumerate(header)]
+        lines = [
+            f"profile fit: model {self.model}, solver {self.solver}, data {'+'.join(self.outputs)}"
+            f" ({'relative, free scale' if self.relative else 'absolute, per incident photon'}), "
+            f"{n} fit{'s' if n != 1 else ''} in {self.seconds:.3g} s",
+            f"fit range: {self.range_reason}",
+            "  ".join(h.rjust(w) if j else h.ljust(w) for j, (h, w) in enumerate(zip(header, widths))),
+        ]
+        lines += ["  ".join(c.rjust(w) if j else c.ljust(w) for j, (c, w) in enumerate(zip(r, widths))) for r in rows]
+        if n > len(shown):
+            lines.append(f"... ({n - len(shown)} more)")
+        lines += [f"note: {t}" for t in self.notes]
+        lines += [f"warning: {t}" for t in self.warnings]
+        return "\n".join(lines)

@@ -1,0 +1,137 @@
+"""``jaxsss fit``: fit sigma_a and sigma_s' to a measured radial profile (CSV or NumPy file) with :mod:`fitting`."""
+
+from __future__ import annotations
+
+import argparse
+import sys
+
+import numpy as np
+
+from jaxsss.cli._common import UNITS_EPILOG, CLIError, add_fresnel_option, number, print_json
+
+NAME = "fit"
+HELP = "fit sigma_a and sigma_s' to a radial profile R(r) (and T(r) for a slab)"
+
+DESCRIPTION = """\
+Fit the absorption and reduced scattering coefficients (1/mm) to a radial profile read from PROFILE: a CSV with
+columns r_mm, R[, R_stderr][, T, T_stderr] (a header line and '#' comments allowed), a .npy array with those
+columns, or a .npz with arrays of those names. r is in mm; R and T in 1/mm^2 per INCIDENT photon (absolute: the
+models include the entry transmittance 1 - F(eta, cos 0)), or in any unit with --relative (a free scale is fitted).
+
+Solver: Optimistix Levenberg-Marquardt (--solver to change) in log-parameters; weights 1/stderr when the file has
+standard errors, else relative residuals. Fit range: by default r >= l_u (one transport mean free path at the
+initial guess), where diffusion is trustworthy; --r-min/--r-max override it. The result states the range used.
+
+Output: a table (default) or one JSON object (--json) with sigma_a, sigma_s_prime, sigma_a_stderr,
+sigma_s_prime_stderr (1/mm), converged, iterations, seconds, model, and more (correlation, r_min, r_max, scale...).
+--plot FILE.png saves data, fit and residuals. Exit status: 0 on success, 1 if the solver did not converge (the
+output says so), 2 on a user error."""
+
+
+def add_parser(subparsers) -> argparse.ArgumentParser:
+    from fitting import FORWARD_MODELS, SOLVERS
+
+    p = subparsers.add_parser(
+        NAME, help=HELP, description=DESCRIPTION, epilog=UNITS_EPILOG,
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+    )
+    p.add_argument("profile", metavar="PROFILE", help="profile file: .csv, .npy or .npz (r in mm)")
+    p.add_argument("--eta", type=number, required=True, help="relative index n_inside / n_outside, > 0")
+    p.add_argument("--model", choices=list(FORWARD_MODELS), default="dipole",
+                   help="forward model: " + "; ".join(f"{m.name}: {m.summary}" for m in FORWARD_MODELS.values()))
+    p.add_argument("--thickness", type=number, metavar="D", help="slab thickness, mm, > 0 (multipole; required there)")
+    p.add_argument("--relative", action="store_true", help="the profile has an unknown scale (fitted)")
+    p.add_argument("--free-eta", action="store_true", help="also fit eta (usually fixed)")
+    p.add_argument("--r-min", type=number, metavar="R", help="smallest radius fitted, mm (default: l_u at the guess)")
+    p.add_argument("--r-max", type=number, metavar="R", help="largest radius fitted, mm (default: all)")
+    p.add_argument("--solver", choices=list(SOLVERS), default="levenberg_marquardt", help="least-squares solver")
+    p.add_argument("--max-steps", type=int, default=256, help="solver iteration cap (default 256)")
+    add_fresnel_option(p)
+    p.add_argument("--json", action="store_true", help="print one JSON object instead of a table")
+    p.add_argument("--plot", metavar="FILE.png", help="save a plot of data, fit and residuals to FILE.png")
+    p.set_defaults(run=run)
+    return p
+
+
+def _plot(path, data, fit):
+    from jaxsss.cli._plot import pyplot, save
+
+    plt = pyplot()
+    outputs = list(fit.outputs)
+    fig, axes = plt.subplots(2, len(outputs), figsize=(5.5 * len(outputs), 6.0), squeeze=False,
+                             gridspec_kw={"height_ratios": [3, 1]}, sharex="col")
+    r = np.asarray(data.r)
+    r_fine = np.geomspace(max(r[r > 0].min(), 1e-6), r.max(), 300) if np.any(r > 0) else r
+    pred_fine = fit.predict(r_fine)
+    pred = fit.predict(r)
+    lo, hi = float(fit.r_min), float(fit.r_max)
+    for j, key in enumerate(outputs):
+        y = np.asarray(getattr(data, key))
+        se = getattr(data, f"{key}_stderr")
+        ax, axr = axes[0, j], axes[1, j]
+        inside = (r >= lo) & (r <= hi)
+        shown = y > 0
+        ax.plot(r[inside & shown], y[inside & shown], "o", ms=3, color="tab:blue", label="data (fitted)")
+        ax.plot(r[~inside & shown], y[~inside & shown], "o", ms=3, mfc="none", color="tab:gray", label="data (not fitted)")
+        ax.plot(r_fine, pred_fine[key], "-", color="tab:red", label=f"{fit.model} fit")
+        ax.axvspan(lo, hi, color="tab:green", alpha=0.07, label="fit range")
+        ax.set_yscale("log")
+        ax.set_xscale("log" if np.all(r > 0) and r.max() / r.min() >= 100 else "linear")
+        ax.set_ylabel(f"{key}(r) [{'a.u.' if fit.relative else '1/mm$^2$ per incident photon'}]")
+        ax.set_title(f"{key}: sigma_a = {float(fit.sigma_a):.4g} +- {float(fit.sigma_a_stderr):.2g}, "
+                     f"sigma_s' = {float(fit.sigma_s_prime):.4g} +- {float(fit.sigma_s_prime_stderr):.2g} /mm",
+                     fontsize=8)
+        ax.grid(True, which="both", alpha=0.3)
+        ax.legend(fontsize=7)
+        # Residuals: in standard errors when given, else relative.
+        if se is not None:
+            res, label = (pred[key] - y) / np.asarray(se), "(fit - data) / stderr"
+        else:
+            res, label = np.where(y != 0, (pred[key] - y) / np.where(y != 0, y, 1.0), np.nan), "(fit - data) / data"
+        axr.plot(r[inside], res[inside], "o", ms=3, color="tab:blue")
+        axr.plot(r[~inside], res[~inside], "o", ms=3, mfc="none", color="tab:gray")
+        axr.axhline(0.0, color="k", lw=0.8)
+        axr.set_xlabel("r [mm]")
+        axr.set_ylabel(label, fontsize=8)
+        axr.grid(True, alpha=0.3)
+        if se is None:
+            lim = np.nanmax(np.abs(res[inside])) if np.any(inside) else 1.0
+            axr.set_ylim(-1.5 * lim - 1e-12, 1.5 * lim + 1e-12)
+    status = "converged" if bool(np.all(fit.converged)) else "NOT CONVERGED"
+    fig.suptitle(f"{data.source}: {fit.model} fit, eta = {float(fit.eta):g} ({status})", fontsize=9)
+    fig.tight_layout()
+    return save(fig, path)
+
+
+def run(args) -> int:
+    from fitting import fit_profile, read_profile
+
+    if args.r_min is not None and args.r_max is not None and not args.r_min < args.r_max:
+        raise CLIError(f"--r-min {args.r_min:g} must be below --r-max {args.r_max:g}")
+    if args.max_steps < 1:
+        raise CLIError(f"--max-steps {args.max_steps} must be >= 1")
+    data = read_profile(args.profile)
+    # warn=False: the fit's warnings (fit.warnings) are printed below as one line each.
+    fit = fit_profile(data, eta=args.eta, model=args.model, thickness=args.thickness, relative=args.relative,
+                      free_eta=args.free_eta, r_min=args.r_min, r_max=args.r_max, solver=args.solver,
+                      max_steps=args.max_steps, fresnel=args.fresnel, warn=False)
+    values = {k: float(np.asarray(getattr(fit, k))) for k in
+              ("sigma_a", "sigma_s_prime", "sigma_a_stderr", "sigma_s_prime_stderr")}
+    if any(np.isnan(v) for v in values.values()):
+        raise CLIError(f"the fit of {data.source} produced NaN; refusing to print it (check the data and --eta)")
+    converged = bool(np.all(fit.converged))
+    if args.json:
+        d = fit.to_dict()
+        d["converged"] = converged
+        d["file"] = data.source
+        print_json(d)
+    else:
+        print(f"{data.source}: {len(data.r)} radii, {data.r[0]:g} to {data.r[-1]:g} mm")
+        print(fit)
+    if args.plot:
+        path = _plot(args.plot, data, fit)
+        if not args.json:
+            print(f"wrote {path}")
+    for text in fit.warnings:
+        print(f"jaxsss: warning: {' '.join(text.split())}", file=sys.stderr)
+    return 0 if converged else 1
