@@ -2,11 +2,32 @@
 
 - :class:`Layer`, :class:`Stack` -- the medium (1/mm, mm, absolute indices; :meth:`Stack.half_space`,
   :meth:`Stack.slab`);
-- :func:`simulate` -- run photons, return an :class:`MCResult` (totals, profiles, histograms, standard errors).
+- :func:`simulate` -- run photons, return an :class:`MCResult` (totals, profiles, histograms, standard errors);
+- :func:`white_mc_profile` -- the white ("scaled") Monte Carlo radial profile, transport-accurate and differentiable,
+  from the shipped tables (:func:`load_white_table`, :func:`available_white_tables`; :mod:`jaxsss.mc.white`).
 """
 
-from jaxsss.mc.result import MCResult
 from jaxsss.mc.engine import simulate
+from jaxsss.mc.result import MCResult
 from jaxsss.mc.stack import Layer, Stack
+from jaxsss.mc.white import (
+    WhiteTable,
+    available_white_tables,
+    load_white_table,
+    white_mc_medium_profile,
+    white_mc_profile,
+    white_mc_profile_stderr,
+)
 
-__all__ = ["Layer", "MCResult", "Stack", "simulate"]
+__all__ = [
+    "Layer",
+    "MCResult",
+    "Stack",
+    "WhiteTable",
+    "available_white_tables",
+    "load_white_table",
+    "simulate",
+    "white_mc_medium_profile",
+    "white_mc_profile",
+    "white_mc_profile_stderr",
+]
