@@ -47,7 +47,17 @@ def inversion_table(doc: dict) -> str:
     return "\n".join(lines)
 
 
+def generic_table(doc: dict) -> str:
+    """The common row keys, for benchmarks without a formatter of their own."""
+    lines = ["| method | setting | error | error metric | seconds | compile s |", "|---|---|---|---|---|---|"]
+    for r in doc["rows"]:
+        lines.append(f"| {r['method']} | {r['setting']} | {_g(r['error'])} | {r['error_metric']} | "
+                     f"{_g(r['seconds'], '.4g')} | {_g(r['compile_seconds'], '.2f')} |")
+    return "\n".join(lines)
+
+
 TABLES = {"profile_throughput": profile_table, "rd_inversion": inversion_table}
+"""Formatters by benchmark name; others use :func:`generic_table`."""
 
 
 def main(argv=None) -> int:
@@ -61,7 +71,7 @@ def main(argv=None) -> int:
         for path in paths:
             doc = json.loads(path.read_text())
             cores = doc["machine"].get("usable_cores", "?")
-            print(f"## {path.stem} ({cores} usable cores)\n\n{header(doc)}\n\n{TABLES[name](doc)}\n\n"
+            print(f"## {path.stem} ({cores} usable cores)\n\n{header(doc)}\n\n{TABLES.get(name, generic_table)(doc)}\n\n"
                   f"summary: {json.dumps(doc['summary'])}\n")
     return 0
 

@@ -41,15 +41,12 @@ surface is excluded, so the profile integrates over the plane to ``R_diffuse`` (
 entering). The diffusion profiles of :mod:`jaxsss.profiles` are per unit flux *entering*; multiply those by
 ``1 - fresnel_reflectance(eta, 1.0)`` to compare.
 
-Regenerate the shipped tables with ``python -m jaxsss.mc.white --regenerate`` (``--help`` for options).
+Regenerate the shipped tables with ``python -m jaxsss.mc.make_white_tables --regenerate`` (``--help`` for options).
 """
 
 from __future__ import annotations
 
-import argparse
 import math
-import sys
-import time
 from pathlib import Path
 
 import equinox as eqx
@@ -221,7 +218,7 @@ def load_white_table(g: float, n: float, directory=None) -> WhiteTable:
     if not path.exists():
         pairs = ", ".join(f"(g={a:g}, n={b:g})" for a, b in available_white_tables(directory)) or "none"
         raise ValueError(f"load_white_table(g={g!r}, n={n!r}): no white Monte Carlo table for this pair; available: "
-                         f"{pairs}. Generate one with `python -m jaxsss.mc.white --regenerate --g {g} --n {n}`")
+                         f"{pairs}. Generate one with `python -m jaxsss.mc.make_white_tables --regenerate --g {g} --n {n}`")
     with np.load(path) as z:
         return WhiteTable(r_edges=jnp.asarray(z["r_edges"], jnp.float64),
                           pathlength_edges=jnp.asarray(z["pathlength_edges"], jnp.float64),
@@ -395,52 +392,3 @@ def white_mc_medium_profile(r, medium, table: WhiteTable | None = None):
             raise ValueError("white_mc_medium_profile(medium=...): eta and g must be scalars (one table per call)")
         table = load_white_table(round(float(g), 2), round(float(eta), 2))
     return white_mc_profile(r, medium.sigma_a, medium.sigma_s_prime, table)
-
-
-# --- Command line -------------------------------------------------------------------------------------------------
-def main(argv=None) -> int:
-    p = argparse.ArgumentParser(
-        prog="python -m jaxsss.mc.white",
-        description="White (non-absorbing) Monte Carlo tables for jaxsss.mc.white_mc_profile. Each table is one "
-        "half-space run with sigma_s = 1/mm, so radii and pathlengths are stored in optical units (1/sigma_s); "
-        "R is per incident photon per unit area (specular excluded), binned over (r, pathlength).",
-    )
-    p.add_argument("--regenerate", action="store_true", help="run the engine and write the tables")
-    p.add_argument("--g", type=float, default=None, help="one anisotropy (default: all shipped pairs)")
-    p.add_argument("--n", type=float, default=None, help="one absolute index, ambient 1 (default: all shipped pairs)")
-    p.add_argument("--photons", type=int, default=None,
-                   help=f"photons per table (default: {GENERATION[0.0]['photons']} for g=0, "
-                   f"{GENERATION[0.9]['photons']} for g=0.9)")
-    p.add_argument("--path-max", type=float, default=None,
-                   help="last pathlength edge, optical units (default: 1e4 for g=0, 3e4 for g=0.9)")
-    p.add_argument("--out", type=Path, default=TABLE_DIR, help=f"directory for the .npz files (default {TABLE_DIR})")
-    p.add_argument("--list", action="store_true", help="list the tables in --out with their metadata")
-    args = p.parse_args(argv)
-    if args.list or not args.regenerate:
-        for g, n in available_white_tables(args.out):
-            info = table_info(g, n, args.out)
-            print(f"g={g:g} n={n:g}: photons={info['photons']} seconds={info['seconds']:.0f} "
-                  f"R_diffuse={info['R_diffuse']:.5f}+-{info['R_diffuse_stderr']:.1e} lost={info['lost_weight']:.4f}")
-        return 0
-    pairs = [pr for pr in STANDARD_PAIRS if (args.g is None or pr[0] == args.g) and (args.n is None or pr[1] == args.n)]
-    if not pairs:
-        if args.g is None or args.n is None:
-            print(f"error: no shipped pair matches g={args.g}, n={args.n}; give both --g and --n", file=sys.stderr)
-            return 2
-        pairs = [(args.g, args.n)]
-    for g, n in pairs:
-        gen = GENERATION.get(g, GENERATION[0.9] if g > 0.5 else GENERATION[0.0])
-        photons = args.photons or gen["photons"]
-        path_max = args.path_max or gen["path_max"]
-        t0 = time.perf_counter()
-        tab = generate_white_table(g, n, photons, path_max=path_max, seed=_seed(g, n),
-                                   lanes=min(gen["lanes"], max(256, photons // 64)))
-        path = save(tab, args.out)
-        print(f"g={g:g} n={n:g}: {photons} photons in {time.perf_counter() - t0:.1f} s, R_diffuse="
-              f"{tab['R_diffuse']:.5f}, lost weight {tab['lost_weight']:.4f}, {path.stat().st_size / 1024:.0f} KB "
-              f"-> {path}", flush=True)
-    return 0
-
-
-if __name__ == "__main__":
-    sys.exit(main())
