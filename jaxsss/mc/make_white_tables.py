@@ -1,8 +1,7 @@
 """Regenerate (or list) the white Monte Carlo tables shipped in ``jaxsss/mc/data``.
 
 ``python -m jaxsss.mc.make_white_tables --regenerate [--g G --n N] [--photons N] [--path-max L] [--out DIR]``
-runs the engine and
-writes the tables; ``--list`` prints the tables in ``--out`` with their metadata. Kept apart from
+runs the engine and writes the tables; ``--list`` prints the tables in ``--out`` with their metadata. Kept apart from
 :mod:`jaxsss.mc.white` so that ``python -m`` does not re-import the module it runs.
 """
 
