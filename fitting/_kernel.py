@@ -153,9 +153,11 @@ def initial_guess(r, y, se, eta, d, r_lo, r_hi, auto, rd, ld, cfg: Config):
     sa_c, ss_c = candidates(rd, ld, eta, cfg.fresnel)
     p = cfg.n_params
 
+    r_min_lu = resolve_model(cfg.model).r_min_lu  # the default range starts at r_min_lu * l_u (model-specific)
+
     def score(sa, ss):
         pred = predict(r, sa, ss, eta, d, cfg)
-        m = in_range & (r >= 1.0 / (sa + ss))[None, :]
+        m = in_range & (r >= r_min_lu / (sa + ss))[None, :]
         if cfg.relative:  # least-squares scale, profiled out
             scale = jnp.sum(jnp.where(m, (w * pred) * (w * y), 0.0)) / jnp.sum(jnp.where(m, (w * pred) ** 2, 0.0))
         else:
@@ -176,9 +178,9 @@ def initial_guess(r, y, se, eta, d, r_lo, r_hi, auto, rd, ld, cfg: Config):
     if cfg.free_eta:
         theta0.append(jnp.log(eta))
     theta0 = jnp.stack(theta0)
-    # Fit range: r >= l_u at the start (the diffusion models fail nearer the source) when ``auto``, else the user's
-    # r_min (a traced flag, so both share one compilation).
-    r_cut = jnp.where(auto, 1.0 / (sa0 + ss0), r_lo)
+    # Fit range: r >= r_min_lu * l_u at the start (the diffusion models, r_min_lu = 1, fail nearer the source) when
+    # ``auto``, else the user's r_min (a traced flag, so both share one compilation).
+    r_cut = jnp.where(auto, r_min_lu / (sa0 + ss0), r_lo)
     mask = in_range & (r >= r_cut)[None, :]
     fallback = jnp.sum(mask) <= p
     mask = jnp.where(fallback, in_range, mask)

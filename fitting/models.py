@@ -13,14 +13,23 @@ Registered models:
   and ``T``. The number of image pairs is static under ``jit``: :meth:`ForwardModel.prepare` chooses it on the host
   with :func:`jaxsss.multipole_n_pairs` from concrete parameter values.
 
-A later transport model (the white-Monte-Carlo model, issue 4) registers itself with :func:`register_model`.
-This module imports only jaxsss's public API.
+- ``mc``: the white ("scaled") Monte Carlo model of a half-space (Kienle and Patterson 1996),
+  :func:`jaxsss.mc.white_mc_profile`; gives ``R`` only. Transport-accurate for the ``(g, n)`` of a shipped table
+  (:func:`jaxsss.mc.available_white_tables`): ``g`` and ``eta`` are fixed by the fit (``g=...``, ``eta=...``) and
+  must name a table. The table is **already per incident photon** (specular excluded: the engine's convention), so
+  this model does *not* multiply by ``T_entry``. Its default fit range starts at ``0.1 l_u`` (see
+  :data:`MC_R_MIN_LU`), and the start is clamped into the table's validity range ``sigma_a / sigma_s >=
+  table.valid_mu_min`` (a note in the result); a solution outside it is a warning of the result.
+
+Other models register themselves with :func:`register_model`. This module imports only jaxsss's public API.
 """
 
 from __future__ import annotations
 
+from functools import lru_cache, partial
 from typing import Callable, NamedTuple
 
+import jax
 import jax.numpy as jnp
 import numpy as np
 
@@ -49,6 +58,16 @@ class ForwardModel(NamedTuple):
             pair count), or ``None``. May raise ``ValueError`` when no setting up to ``static_cap`` suffices.
         guess_static: the fixed static setting used to rank the initial-guess candidates (models with ``prepare``).
         static_cap: the largest static setting a fit uses (recorded in the fit's notes when it is reached).
+        configure: host-side ``configure(owner, eta, g) -> static`` for models whose static setting is fixed by the
+            fit's settings rather than by the parameters (the ``mc`` model's ``(g, n)`` table), or ``None``. ``eta``
+            is the per-problem array of relative indices, ``g`` the user's anisotropy (``None`` if not given).
+            Raises ``ValueError`` naming the arguments and the allowed values.
+        uses_g: the model takes the anisotropy ``g`` (others reject ``g=...``).
+        r_min_lu: the default fit range is ``r >= r_min_lu * l_u`` at the initial guess.
+        range_reason: why that default (recorded in the result).
+        ratio_min: host-side ``ratio_min(static) -> float``: the smallest ``sigma_a / sigma_s'`` where the model is
+            valid, or ``None`` (no limit). The start is clamped into the range (with a note) and a solution below it
+            is a warning of the result.
     """
 
     name: str
@@ -59,6 +78,12 @@ class ForwardModel(NamedTuple):
     prepare: Callable | None = None
     guess_static: object = None
     static_cap: object = None
+    configure: Callable | None = None
+    uses_g: bool = False
+    r_min_lu: float = 1.0
+    range_reason: str = ("r >= l_u = 1/sigma_t' at the initial guess (diffusion is 10-20x off within half a "
+                         "transport mean free path of the source)")
+    ratio_min: Callable | None = None
 
 
 def _dipole(r, medium, thickness, static):
@@ -128,6 +153,116 @@ register_model(
         _multipole_prepare,
         guess_static=MULTIPOLE_GUESS_PAIRS,
         static_cap=MULTIPOLE_MAX_PAIRS,
+    )
+)
+
+
+# --- The white Monte Carlo model ----------------------------------------------------------------------------------
+MC_R_MIN_LU = 0.1
+"""Default fit range of the ``mc`` model: ``r >= 0.1 l_u`` at the initial guess. The white-MC model is transport
+(exact for its ``g`` and ``n`` up to table noise) near the source too, so most of the near field can be fitted -- it
+carries most of the information on the albedo. 0.1 l_u lies beyond the table's merged first radial bin (below
+0.09 l_u for g = 0.9), where the model is a constant disk average rather than a profile."""
+
+
+def _mc_key(g, eta) -> tuple[float, float]:
+    return round(float(g), 2), round(float(eta), 2)
+
+
+@lru_cache(maxsize=8)
+def mc_table(g: float, n: float):
+    """The shipped white Monte Carlo table for ``(g, n)`` (cached: loaded once per process)."""
+    from jaxsss.mc import load_white_table
+
+    # Concrete arrays even when first called inside a trace (a cached tracer would leak out of it).
+    with jax.ensure_compile_time_eval():
+        return load_white_table(g, n)
+
+
+def _mc_configure(owner, eta, g):
+    from jaxsss.mc import available_white_tables
+
+    pairs = available_white_tables()
+    listing = ", ".join(f"(g={a:g}, eta={b:g})" for a, b in pairs) or "none"
+    if g is None:
+        raise ValueError(f"{owner}(model='mc') needs g=... (the Henyey-Greenstein anisotropy of a white Monte Carlo "
+                         f"table); available (g, eta) pairs: {listing}")
+    etas = np.unique(np.round(np.asarray(eta, dtype=np.float64), 2))
+    if etas.size != 1:
+        raise ValueError(f"{owner}(model='mc', eta={etas.tolist()}): one eta per fit (one table); fit each eta apart")
+    key = _mc_key(g, etas[0])
+    if key not in [_mc_key(a, b) for a, b in pairs]:
+        raise ValueError(f"{owner}(model='mc', g={float(g):g}, eta={float(etas[0]):g}): no white Monte Carlo table for "
+                         f"this pair; available (g, eta) pairs: {listing}. Generate one with `python -m "
+                         f"jaxsss.mc.white --regenerate --g {float(g):g} --n {float(etas[0]):g}`")
+    mc_table(*key)  # load on the host, before any tracing
+    return key
+
+
+@partial(jax.custom_jvp, nondiff_argnums=(3,))
+def mc_R(r, sigma_a, sigma_s_prime, static):
+    """:func:`jaxsss.mc.white_mc_profile` for the table ``static = (g, n)``, per incident photon.
+
+    Its JVP rule forms the ``(N, 2)`` Jacobian in ``(sigma_a, sigma_s')`` once with :func:`jax.jacfwd` and applies it
+    to the tangents. The result is the same derivative, but the solver's linearisation, its materialised Jacobian and
+    its transposition then see a matrix product instead of the table's spline and node correction: the compiled fit
+    is about half the size (compile time is what a single fit costs)."""
+    from jaxsss.mc import white_mc_profile
+
+    return white_mc_profile(r, sigma_a, sigma_s_prime, mc_table(*static))
+
+
+def _mc_R_jvp(static, primals, tangents):
+    from jaxsss.mc import white_mc_profile
+
+    r, sa, ss = primals
+    tr, tsa, tss = tangents
+    table = mc_table(*static)
+
+    def f(p):
+        y = white_mc_profile(r, p[0], p[1], table)
+        return y, y
+
+    p = jnp.stack(jnp.broadcast_arrays(sa, ss))
+    jac, val = jax.jacfwd(f, has_aux=True)(p)  # (..., 2)
+    zero = jax.custom_derivatives.SymbolicZero
+    out = jnp.zeros_like(val)
+    if not isinstance(tsa, zero):
+        out = out + jac[..., 0] * tsa
+    if not isinstance(tss, zero):
+        out = out + jac[..., 1] * tss
+    if not isinstance(tr, jax.custom_derivatives.SymbolicZero):
+        out = out + jax.jvp(lambda rr: white_mc_profile(rr, sa, ss, table), (r,), (tr,))[1]
+    return val, out
+
+
+mc_R.defjvp(_mc_R_jvp, symbolic_zeros=True)
+
+
+def _mc(r, medium, thickness, static):
+    # Per incident photon already (specular excluded): no entry transmittance here, unlike the diffusion models.
+    return {"R": mc_R(r, medium.sigma_a, medium.sigma_s_prime, static)}
+
+
+def _mc_ratio_min(static) -> float:
+    """``sigma_a / sigma_s' >= valid_mu_min / (1 - g)`` (the table's ``sigma_a / sigma_s`` bound)."""
+    g, n = static
+    return mc_table(g, n).valid_mu_min / (1.0 - g)
+
+
+register_model(
+    ForwardModel(
+        "mc",
+        "white Monte Carlo half-space (Kienle and Patterson 1996), transport-accurate for a tabulated (g, eta); R only",
+        ("R",),
+        False,
+        _mc,
+        configure=_mc_configure,
+        uses_g=True,
+        r_min_lu=MC_R_MIN_LU,
+        range_reason=("r >= 0.1 l_u at the initial guess (the white-MC model is transport near the source; 0.1 l_u "
+                      "is beyond the table's merged first radial bin)"),
+        ratio_min=_mc_ratio_min,
     )
 )
 

@@ -10,8 +10,8 @@ vmapped call solves all of them (and shards them over the devices when there are
 
 Fit range. By default the fit uses the radii ``r >= l_u`` (one transport mean free path ``1 / sigma_t'``) at the
 initial guess: within half a transport mean free path the dipole is 10-20x too low, and 10-30% high at 1-5
-(shared/reference/README.md, "How good the dipole is"). ``r_min``/``r_max`` override it. The result records the
-range and the reason.
+(shared/reference/README.md, "How good the dipole is"). The transport model ``mc`` starts at ``0.1 l_u`` instead
+(:data:`fitting.models.MC_R_MIN_LU`). ``r_min``/``r_max`` override it. The result records the range and the reason.
 
 Weights: ``1 / stderr`` when standard errors are given, else relative residuals ``(model - data) / data`` (points
 with ``data <= 0`` are then left out).
@@ -245,8 +245,23 @@ def _prepare_static(model, problem, sa, ss, eta, fresnel, notes):
         return model.static_cap
 
 
+def _configure(owner, model, pb, g, free_eta):
+    """The static setting fixed by the fit's settings (the ``mc`` model's table), or ``None``; checks ``g``."""
+    if g is not None and not model.uses_g:
+        raise ValueError(f"{owner}(g={g!r}) applies to the transport model only ('mc'), not model={model.name!r}")
+    if g is not None:
+        g = float(_as_array(g, "g", owner))
+        if not -1.0 < g < 1.0:
+            raise ValueError(f"{owner}(g={g:g}) is outside the allowed range (-1, 1)")
+    if model.configure is None:
+        return None
+    if free_eta:
+        raise ValueError(f"{owner}(free_eta=True) is not available for model={model.name!r}: its table fixes eta")
+    return model.configure(owner, pb.eta, g)
+
+
 def _fit(owner, batched, r, R, R_stderr, T, T_stderr, *, eta, model, thickness, relative, free_eta, r_min, r_max,
-         solver, rtol, atol, max_steps, fresnel, warn, shard=None):
+         solver, rtol, atol, max_steps, fresnel, warn, shard=None, g=None):
     t0 = time.perf_counter()
     model = resolve_model(model)
     resolve_solver(solver)
@@ -255,9 +270,19 @@ def _fit(owner, batched, r, R, R_stderr, T, T_stderr, *, eta, model, thickness, 
     pb = _Problem(owner, r, R, R_stderr, T, T_stderr, eta, thickness, model, batched, r_min, r_max)
     if not (isinstance(max_steps, int) and max_steps >= 1):
         raise ValueError(f"{owner}(max_steps={max_steps!r}) must be an int >= 1")
-    cfg = K.Config(model=model.name, static=None, outputs=pb.outputs,
+    static0 = _configure(owner, model, pb, g, free_eta)
+    cfg = K.Config(model=model.name, static=static0, outputs=pb.outputs,
                    relative=bool(relative), free_eta=bool(free_eta), solver=solver,
                    rtol=float(rtol), atol=float(atol), max_steps=int(max_steps), fresnel=fresnel)
+    source_bin = False
+    if model.name == "mc" and r_min is None and pb.r[0] > 0:
+        # Binned data (e.g. `jaxsss mc`): radii at the centres of equal bins starting at 0. The first bin holds the
+        # source, where R is steep (~1/r): its average is far from the transport point value at its centre (3% bias
+        # in sigma_a at albedo 0.99, 100 bins), so the default range starts at the second bin.
+        step = np.diff(pb.r)
+        if np.allclose(step, step[0], rtol=1e-6) and abs(2.0 * pb.r[0] - step[0]) <= 1e-6 * step[0]:
+            source_bin = True
+            pb.r_lo = np.maximum(pb.r_lo, 0.5 * (pb.r[0] + pb.r[1]))
     y, se, eta_p, d = (jnp.asarray(a) for a in (pb.y, pb.se, pb.eta, pb.d))
     r_lo, r_hi = jnp.asarray(pb.r_lo), jnp.asarray(pb.r_hi)
     notes = []
@@ -275,6 +300,14 @@ def _fit(owner, batched, r, R, R_stderr, T, T_stderr, *, eta, model, thickness, 
         cfg = cfg._replace(static=model.guess_static)
     theta0, mask, r_cut, fallback = _run("initial_guess", cfg, shard, pb.r, y, se, eta_p, d, r_lo, r_hi,
                                               jnp.asarray(pb.auto), rd, ld)
+    ratio_min = None if model.ratio_min is None else float(model.ratio_min(cfg.static))
+    if ratio_min is not None:
+        # Clamp the start into the model's validity range sigma_a / sigma_s' >= ratio_min (said in the notes).
+        low = np.asarray(theta0[:, 0] - theta0[:, 1]) < np.log(ratio_min)
+        if np.any(low):
+            theta0 = theta0.at[:, 0].set(jnp.where(jnp.asarray(low), theta0[:, 1] + np.log(ratio_min), theta0[:, 0]))
+            notes.append(f"initial guess: sigma_a / sigma_s' raised to {ratio_min:.3g} (the {model.name} model's "
+                         f"validity limit) for {int(low.sum())} fit(s)")
     if np.any(fallback):
         notes.append(f"fit range: fewer than {cfg.n_params + 1} points beyond r_min for {int(np.sum(fallback))} "
                      "fit(s); all radii in [r_min, r_max] used there")
@@ -300,8 +333,10 @@ def _fit(owner, batched, r, R, R_stderr, T, T_stderr, *, eta, model, thickness, 
     seconds = time.perf_counter() - t0
 
     if r_min is None:
-        reason = ("default: r >= l_u = 1/sigma_t' at the initial guess (diffusion is 10-20x off within half a "
-                  "transport mean free path of the source)")
+        reason = "default: " + model.range_reason
+        if source_bin:
+            reason += ("; the first radius left out: the data look like centres of equal bins from r = 0, and the "
+                       "first bin's average over the source is not the model's point value")
     else:
         reason = f"user: r_min = {float(r_min):g} mm"
     reason += "; " + ("r_max = all radii" if r_max is None else f"r_max = {float(r_max):g} mm")
@@ -310,6 +345,16 @@ def _fit(owner, batched, r, R, R_stderr, T, T_stderr, *, eta, model, thickness, 
     corr = np.asarray(out["correlation"])
     cond = np.asarray(out["condition_number"])
     identifiable = (np.abs(corr) <= CORRELATION_LIMIT) & (cond <= CONDITION_LIMIT)
+    model_warnings = []
+    if ratio_min is not None:
+        ratio = np.asarray(out["sigma_a"]) / np.asarray(out["sigma_s_prime"])
+        outside = ratio < ratio_min * (1.0 - 1e-9)
+        if np.any(outside):
+            i = int(np.argmax(outside))
+            model_warnings.append(
+                f"{int(outside.sum())} of {outside.size} fits left the {model.name} model's validity range "
+                f"sigma_a / sigma_s' >= {ratio_min:.3g} (first: fit {i}: {ratio[i]:.3g}); the table loses long paths "
+                "there and the solution is biased (sigma_a too low)")
     u = pb.unflatten
     zeros = np.zeros(pb.B * pb.C)
     res = ProfileFit(
@@ -324,6 +369,7 @@ def _fit(owner, batched, r, R, R_stderr, T, T_stderr, *, eta, model, thickness, 
         thickness=u(pb.d) if model.needs_thickness else None, model=model.name, solver=solver,
         outputs=pb.outputs, relative=bool(relative), free_eta=bool(free_eta), range_reason=reason,
         notes=tuple(notes), seconds=seconds, static=cfg.static, fresnel=fresnel,
+        model_warnings=tuple(model_warnings),
     )
     if warn:
         for text in res.warnings:
@@ -350,18 +396,21 @@ _DOC_ARGS = """
             Without them the residuals are relative, ``(model - data) / data``.
         eta: relative index ``n_inside / n_outside`` (``> 0``), scalar or broadcasting to {eta_shape}. Fixed unless
             ``free_eta``.
-        model: forward model name (:data:`fitting.FORWARD_MODELS`: ``"dipole"``, ``"multipole"``).
+        model: forward model name (:data:`fitting.FORWARD_MODELS`: ``"dipole"``, ``"multipole"``, ``"mc"``).
         thickness: slab thickness, mm (models that need it only), broadcasting like ``eta``.
         relative: the data carry an unknown positive scale, fitted per channel.
         free_eta: also fit ``eta`` (per channel).
         r_min, r_max: fit range in mm. Default ``r_min``: one transport mean free path ``l_u`` at the initial
-            guess; default ``r_max``: all radii.
+            guess (``0.1 l_u`` for ``"mc"``); default ``r_max``: all radii.
         solver: :data:`fitting.SOLVERS` name (``"levenberg_marquardt"``, ``"gauss_newton"``, ``"dogleg"``).
         rtol, atol: solver tolerances (on the log-parameters and the residual norm).
         max_steps: iteration cap; fits that hit it report ``converged = False``.
         fresnel: ``F_dr`` method of the models (``"poly"`` or ``"exact"``).
         warn: emit :class:`FitWarning` for non-converged or non-identifiable fits (the flags are in the result
             either way).
+        g: Henyey-Greenstein anisotropy, fixed: required by ``model="mc"`` (with ``eta`` it picks the white Monte
+            Carlo table, :func:`jaxsss.mc.available_white_tables`), rejected by the diffusion models (they depend on
+            ``sigma_s'`` only).
 
     Returns:
         :class:`fitting.ProfileFit`.
@@ -370,17 +419,17 @@ _DOC_ARGS = """
 
 def fit_profile(r, R=None, *, T=None, R_stderr=None, T_stderr=None, eta, model="dipole", thickness=None,
                 relative=False, free_eta=False, r_min=None, r_max=None, solver="levenberg_marquardt",
-                rtol=DEFAULT_RTOL, atol=DEFAULT_ATOL, max_steps=256, fresnel="poly", warn=True) -> ProfileFit:
+                rtol=DEFAULT_RTOL, atol=DEFAULT_ATOL, max_steps=256, fresnel="poly", warn=True, g=None) -> ProfileFit:
     """Fit ``sigma_a`` and ``sigma_s'`` to one profile (all its channels in one compiled call)."""
     return _fit("fit_profile", False, r, R, R_stderr, T, T_stderr, eta=eta, model=model, thickness=thickness,
                 relative=relative, free_eta=free_eta, r_min=r_min, r_max=r_max, solver=solver, rtol=rtol, atol=atol,
-                max_steps=max_steps, fresnel=fresnel, warn=warn)
+                max_steps=max_steps, fresnel=fresnel, warn=warn, g=g)
 
 
 def fit_profiles(r, R=None, *, T=None, R_stderr=None, T_stderr=None, eta, model="dipole", thickness=None,
                  relative=False, free_eta=False, r_min=None, r_max=None, solver="levenberg_marquardt",
                  rtol=DEFAULT_RTOL, atol=DEFAULT_ATOL, max_steps=256, fresnel="poly", warn=True,
-                 shard=None) -> ProfileFit:
+                 shard=None, g=None) -> ProfileFit:
     """Fit a batch of profiles on one radius grid in one compiled, vmapped call.
 
     With several JAX devices (``jax.devices()``) the problems (profiles x channels) are split over a 1-D mesh with
@@ -389,7 +438,7 @@ def fit_profiles(r, R=None, *, T=None, R_stderr=None, T_stderr=None, eta, model=
     """
     return _fit("fit_profiles", True, r, R, R_stderr, T, T_stderr, eta=eta, model=model, thickness=thickness,
                 relative=relative, free_eta=free_eta, r_min=r_min, r_max=r_max, solver=solver, rtol=rtol, atol=atol,
-                max_steps=max_steps, fresnel=fresnel, warn=warn, shard=shard)
+                max_steps=max_steps, fresnel=fresnel, warn=warn, shard=shard, g=g)
 
 
 fit_profile.__doc__ += _DOC_ARGS.format(shape="Shape ``(N,)`` or ``(N, C)`` for ``C`` channels.",
@@ -401,7 +450,7 @@ fit_profiles.__doc__ += _DOC_ARGS.format(shape="Shape ``(B, N)`` or ``(B, N, C)`
 
 def fit_jacobian_wrt_data(r, R=None, *, T=None, R_stderr=None, T_stderr=None, eta, model="dipole", thickness=None,
                           relative=False, r_min=None, r_max=None, solver="levenberg_marquardt", rtol=DEFAULT_RTOL,
-                          atol=DEFAULT_ATOL, max_steps=256, fresnel="poly"):
+                          atol=DEFAULT_ATOL, max_steps=256, fresnel="poly", g=None):
     """Derivatives of the fitted ``(sigma_a, sigma_s')`` with respect to the data, by the implicit function theorem.
 
     The fit (same arguments as :func:`fit_profile`, one profile) is solved with :func:`optimistix.least_squares`
@@ -415,7 +464,7 @@ def fit_jacobian_wrt_data(r, R=None, *, T=None, R_stderr=None, T_stderr=None, et
     """
     fit = fit_profile(r, R, T=T, R_stderr=R_stderr, T_stderr=T_stderr, eta=eta, model=model, thickness=thickness,
                       relative=relative, r_min=r_min, r_max=r_max, solver=solver, rtol=rtol, atol=atol,
-                      max_steps=max_steps, fresnel=fresnel, warn=False)
+                      max_steps=max_steps, fresnel=fresnel, warn=False, g=g)
     mdl = resolve_model(model)
     r_, R_, Rs_, T_, Ts_ = _unpack_data(r, R, R_stderr, T, T_stderr)
     pb = _Problem("fit_jacobian_wrt_data", r_, R_, Rs_, T_, Ts_, eta, thickness, mdl, False, r_min, r_max)

@@ -52,7 +52,10 @@ class ProfileFit(eqx.Module):
             ``condition_number <= CONDITION_LIMIT``.
         guess_sigma_a, guess_sigma_s_prime: the initial guess.
         thickness: slab thickness (mm) or ``None``.
-        model, solver, outputs, relative, free_eta, range_reason, notes, seconds, static: what was run (static).
+        model, solver, outputs, relative, free_eta, range_reason, notes, seconds, static: what was run (static);
+            ``static`` is the model's static setting (the multipole's pair count, the ``mc`` model's ``(g, eta)``).
+        model_warnings: warnings about the model's validity at the solution (e.g. the ``mc`` model's table range),
+            included in :attr:`warnings`.
     """
 
     sigma_a: jax.Array
@@ -87,6 +90,7 @@ class ProfileFit(eqx.Module):
     seconds: float = eqx.field(static=True)
     static: object = eqx.field(static=True, default=None)
     fresnel: str = eqx.field(static=True, default="poly")
+    model_warnings: tuple = eqx.field(static=True, default=())
 
     @property
     def shape(self) -> tuple:
@@ -120,6 +124,7 @@ class ProfileFit(eqx.Module):
                 f"corr(sigma_a, sigma_s') = {corr[i]:.4f}, cond(J^T J) = {cond[i]:.3g}); the data fix only a "
                 "combination such as sigma_tr -- add absolute calibration, near-field radii, or fix a parameter"
             )
+        out.extend(self.model_warnings)
         return out
 
     def predict(self, r):
@@ -191,7 +196,9 @@ class ProfileFit(eqx.Module):
         if self.thickness is not None:
             d["thickness"] = val(self.thickness)
         if self.static is not None:
-            d["model_static"] = self.static
+            d["model_static"] = list(self.static) if isinstance(self.static, tuple) else self.static
+        if self.model == "mc" and isinstance(self.static, tuple):
+            d["g"] = float(self.static[0])
         return d
 
     def to_json(self, **kwargs) -> str:

@@ -16,7 +16,9 @@ DESCRIPTION = """\
 Fit the absorption and reduced scattering coefficients (1/mm) to a radial profile read from PROFILE: a CSV with
 columns r_mm, R[, R_stderr][, T, T_stderr] (a header line and '#' comments allowed), a .npy array with those
 columns, or a .npz with arrays of those names. r is in mm; R and T in 1/mm^2 per INCIDENT photon (absolute: the
-models include the entry transmittance 1 - F(eta, cos 0)), or in any unit with --relative (a free scale is fitted).
+models include the entry transmittance 1 - F(eta, cos 0); the mc model's tables are per incident photon already),
+or in any unit with --relative (a free scale is fitted). The mc model (white Monte Carlo, transport-accurate) needs
+--g and an (--g, --eta) pair with a shipped table; its default range starts at 0.1 l_u.
 
 Solver: Optimistix Levenberg-Marquardt (--solver to change) in log-parameters; weights 1/stderr when the file has
 standard errors, else relative residuals. Fit range: by default r >= l_u (one transport mean free path at the
@@ -40,6 +42,9 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
     p.add_argument("--model", choices=list(FORWARD_MODELS), default="dipole",
                    help="forward model: " + "; ".join(f"{m.name}: {m.summary}" for m in FORWARD_MODELS.values()))
     p.add_argument("--thickness", type=number, metavar="D", help="slab thickness, mm, > 0 (multipole; required there)")
+    p.add_argument("--g", type=number, metavar="G",
+                   help="Henyey-Greenstein anisotropy, fixed (mc model; required there: with --eta it picks a white "
+                   "Monte Carlo table, e.g. g 0 or 0.9 with eta 1 or 1.4)")
     p.add_argument("--relative", action="store_true", help="the profile has an unknown scale (fitted)")
     p.add_argument("--free-eta", action="store_true", help="also fit eta (usually fixed)")
     p.add_argument("--r-min", type=number, metavar="R", help="smallest radius fitted, mm (default: l_u at the guess)")
@@ -114,7 +119,7 @@ def run(args) -> int:
     # warn=False: the fit's warnings (fit.warnings) are printed below as one line each.
     fit = fit_profile(data, eta=args.eta, model=args.model, thickness=args.thickness, relative=args.relative,
                       free_eta=args.free_eta, r_min=args.r_min, r_max=args.r_max, solver=args.solver,
-                      max_steps=args.max_steps, fresnel=args.fresnel, warn=False)
+                      max_steps=args.max_steps, fresnel=args.fresnel, warn=False, g=args.g)
     values = {k: float(np.asarray(getattr(fit, k))) for k in
               ("sigma_a", "sigma_s_prime", "sigma_a_stderr", "sigma_s_prime_stderr")}
     if any(np.isnan(v) for v in values.values()):

@@ -1,4 +1,5 @@
-"""``jaxsss run``: the main job prints the Jensen 2001 table and writes the dipole-profile plot."""
+"""``jaxsss run``: the main job prints the Jensen 2001 table, writes the dipole-profile plot, and simulates and fits a
+measurement (with fewer photons than the default, ``--photons``, to keep the module fast)."""
 
 import json
 
@@ -10,6 +11,7 @@ from jaxsss.cli.run import STEPS
 from jaxsss.data import list_materials
 
 PNG_SIGNATURE = b"\x89PNG\r\n\x1a\n"
+PHOTONS = 20_000
 
 
 @pytest.fixture(scope="module")
@@ -21,7 +23,7 @@ def job(tmp_path_factory):
     out_dir = tmp_path_factory.mktemp("run") / "nested" / "out"
     stdout, stderr = io.StringIO(), io.StringIO()
     with contextlib.redirect_stdout(stdout), contextlib.redirect_stderr(stderr):
-        code = main(["run", "--out-dir", str(out_dir)])
+        code = main(["run", "--out-dir", str(out_dir), "--photons", str(PHOTONS)])
     return code, stdout.getvalue(), stderr.getvalue(), out_dir
 
 
@@ -63,7 +65,7 @@ def test_job_table_agrees_with_reparam(job, capsys):
 
 def test_job_is_a_list_of_steps(job):
     _, out, _, _ = job
-    assert [s.name for s in STEPS][:2] == ["reparam", "dipole_profiles"]
+    assert [s.name for s in STEPS] == ["reparam", "dipole_profiles", "measure", "fit_measurement"]
     for i, step in enumerate(STEPS, 1):
         assert f"step {i}/{len(STEPS)}: {step.name}" in out
 
@@ -75,3 +77,34 @@ def test_out_dir_that_is_a_file_is_a_user_error(capsys, tmp_path):
     captured = capsys.readouterr()
     assert captured.out == ""
     assert captured.err.startswith("jaxsss: error:") and captured.err.count("\n") == 1
+
+
+def test_job_simulates_and_fits_a_named_material(job):
+    """Steps 3-4: skin1's green channel (g 0.9, n 1.4) is simulated, written as a CSV and fitted. With 2e4 photons
+    the mc estimates must still land within 5 standard errors + 2% (the model's systematic error, cf.
+    tests/fitting/test_mc_model.py); the dipole's error is printed, whatever it is."""
+    from fitting import read_profile
+    from jaxsss.cli.run import MEASURED, MEASURE_G, MEASURE_N
+
+    _, out, _, out_dir = job
+    path = out_dir / "measurement_skin1_G.csv"
+    data = read_profile(path)
+    assert len(data.r) > 10 and data.R_stderr is not None
+    assert f"{PHOTONS} photons" in out and f"g = {MEASURE_G:g}" in out and f"eta = {MEASURE_N:g}" in out
+    rows = {}
+    model = None
+    for line in out.splitlines():
+        parts = line.split()
+        if parts and parts[0] in ("mc", "dipole"):
+            model, parts = parts[0], parts[1:]
+        elif not (parts and parts[0] == "sigma_s'"):
+            continue
+        if parts and parts[0] in ("sigma_a", "sigma_s'"):
+            rows[(model, parts[0])] = [float(parts[1]), float(parts[2]), float(parts[3]), parts[4]]
+    assert set(rows) == {(m, p) for m in ("mc", "dipole") for p in ("sigma_a", "sigma_s'")}
+    for p in ("sigma_a", "sigma_s'"):
+        truth, est, se, rel = rows[("mc", p)]
+        assert abs(est - truth) <= 5 * se + 0.02 * truth, (p, truth, est, se)
+        assert rel.endswith("%")
+    assert out.count("converged") >= 2 and "NOT CONVERGED" not in out
+    assert MEASURED[0] == "skin1"
