@@ -26,7 +26,6 @@ from functools import lru_cache
 import jax
 import jax.numpy as jnp
 import numpy as np
-import optimistix as optx
 
 import jaxsss
 from fitting import _kernel as K

@@ -3,12 +3,13 @@
 from __future__ import annotations
 
 import json
-import math
 
 import equinox as eqx
 import jax
 import numpy as np
 import optimistix as optx
+
+import jaxsss
 
 __all__ = ["CORRELATION_LIMIT", "CONDITION_LIMIT", "ProfileFit"]
 
@@ -150,13 +151,6 @@ class ProfileFit(eqx.Module):
     def to_dict(self) -> dict:
         """JSON-ready dict: arrays as (nested) lists of the batch shape, scalars for a single fit; non-finite -> None."""
 
-        def val(x):
-            arr = np.asarray(x, dtype=np.float64)
-            if arr.ndim == 0:
-                v = float(arr)
-                return v if math.isfinite(v) else None
-            return [val(a) for a in arr]
-
         def ints(x):
             return np.asarray(x).astype(int).tolist()
 
@@ -165,36 +159,36 @@ class ProfileFit(eqx.Module):
             "solver": self.solver,
             "outputs": list(self.outputs),
             "relative": self.relative,
-            "sigma_a": val(self.sigma_a),
-            "sigma_s_prime": val(self.sigma_s_prime),
-            "sigma_a_stderr": val(self.sigma_a_stderr),
-            "sigma_s_prime_stderr": val(self.sigma_s_prime_stderr),
-            "correlation": val(self.correlation),
+            "sigma_a": jaxsss.json_ready(self.sigma_a),
+            "sigma_s_prime": jaxsss.json_ready(self.sigma_s_prime),
+            "sigma_a_stderr": jaxsss.json_ready(self.sigma_a_stderr),
+            "sigma_s_prime_stderr": jaxsss.json_ready(self.sigma_s_prime_stderr),
+            "correlation": jaxsss.json_ready(self.correlation),
             "converged": np.asarray(self.converged).tolist(),
             "message": self.messages() if self.shape else self.messages()[0],
             "iterations": ints(self.iterations),
             "seconds": float(self.seconds),
             "identifiable": np.asarray(self.identifiable).tolist(),
-            "condition_number": val(self.condition_number),
-            "residual_norm": val(self.residual_norm),
-            "reduced_chi2": val(self.reduced_chi2),
+            "condition_number": jaxsss.json_ready(self.condition_number),
+            "residual_norm": jaxsss.json_ready(self.residual_norm),
+            "reduced_chi2": jaxsss.json_ready(self.reduced_chi2),
             "n_points": ints(self.n_points),
-            "r_min": val(self.r_min),
-            "r_max": val(self.r_max),
-            "r_cut": val(self.r_cut),
+            "r_min": jaxsss.json_ready(self.r_min),
+            "r_max": jaxsss.json_ready(self.r_max),
+            "r_cut": jaxsss.json_ready(self.r_cut),
             "range_reason": self.range_reason,
-            "eta": val(self.eta),
-            "guess_sigma_a": val(self.guess_sigma_a),
-            "guess_sigma_s_prime": val(self.guess_sigma_s_prime),
+            "eta": jaxsss.json_ready(self.eta),
+            "guess_sigma_a": jaxsss.json_ready(self.guess_sigma_a),
+            "guess_sigma_s_prime": jaxsss.json_ready(self.guess_sigma_s_prime),
             "notes": list(self.notes),
             "warnings": self.warnings,
         }
         if self.relative:
-            d["scale"], d["scale_stderr"] = val(self.scale), val(self.scale_stderr)
+            d["scale"], d["scale_stderr"] = jaxsss.json_ready(self.scale), jaxsss.json_ready(self.scale_stderr)
         if self.free_eta:
-            d["eta_stderr"] = val(self.eta_stderr)
+            d["eta_stderr"] = jaxsss.json_ready(self.eta_stderr)
         if self.thickness is not None:
-            d["thickness"] = val(self.thickness)
+            d["thickness"] = jaxsss.json_ready(self.thickness)
         if self.static is not None:
             d["model_static"] = list(self.static) if isinstance(self.static, tuple) else self.static
         if self.model == "mc" and isinstance(self.static, tuple):

@@ -24,6 +24,7 @@ from jaxsss.reflectance import (
     total_diffuse_reflectance,
 )
 from jaxsss.reparam import Reparameterisation, from_rd_ld, to_rd_ld
+from jaxsss.serialize import json_ready
 
 from jaxsss import mc  # noqa: E402  (Monte Carlo transport reference: jaxsss.mc.simulate, Stack, Layer, MCResult)
 
@@ -47,6 +48,7 @@ __all__ = [
     "fresnel_reflectance",
     "from_rd_ld",
     "invert_rd",
+    "json_ready",
     "list_materials",
     "material",
     "material_medium",

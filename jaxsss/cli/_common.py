@@ -15,6 +15,8 @@ from typing import Iterable, Sequence
 
 import numpy as np
 
+from jaxsss.serialize import json_ready as to_json_value  # noqa: F401  (re-exported for the commands)
+
 PROG = "jaxsss"
 EXIT_USAGE = 2
 
@@ -108,15 +110,6 @@ def fmt(x: float, digits: int = 6) -> str:
     if math.isinf(x):
         return "inf" if x > 0 else "-inf"
     return f"{x:.{digits}g}"
-
-
-def to_json_value(x):
-    """Float or nested list of floats for JSON: infinities become ``null`` (NaN never reaches here)."""
-    arr = np.asarray(x, dtype=np.float64)
-    if arr.ndim == 0:
-        v = float(arr)
-        return None if math.isinf(v) else v
-    return [to_json_value(a) for a in arr]
 
 
 def print_json(obj: dict) -> None:
