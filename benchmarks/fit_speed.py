@@ -48,7 +48,7 @@ def dipole_np(r, sigma_a, sigma_s_prime, eta):
     sigma_t = sigma_a + sigma_s_prime
     alpha = sigma_s_prime / sigma_t
     sigma_tr = np.sqrt(3.0 * sigma_a * sigma_t)
-    F_dr = -1.4399 / eta**2 + 0.7099 / eta + 0.6681 + 0.0636 * eta  # Egan and Hilgeman, eta >= 1
+    F_dr = -1.4399 / eta**2 + 0.7099 / eta + 0.6681 + 0.0636 * eta  # Groenhuis et al. 1983, eta >= 1
     A = (1.0 + F_dr) / (1.0 - F_dr)
     D = 1.0 / (3.0 * sigma_t)
     z_r = 1.0 / sigma_t
