@@ -12,10 +12,11 @@ This package is installed with ``jaxsss`` and imports only its public API (``imp
 - I/O: :func:`read_profile_csv`, :func:`load_profile_npy`, :func:`read_profile` -> :class:`ProfileData`.
 
 The Rd -> alpha' inversion and the (Rd, l_d) reparameterisation are closed-form physics and live in
-:mod:`jaxsss.reflectance` and :mod:`jaxsss.reparam`. Image fits (issue 5) will land here too.
+:mod:`jaxsss.reflectance` and :mod:`jaxsss.reparam`. - :func:`fit_image`: sigma_a and sigma_s' per channel from a rendered image (:class:`ImageFit`).
 """
 
 import jaxsss  # noqa: F401  (float64 before anything else)
+from fitting.image_fit import ImageFit, fit_image
 from fitting.io import COLUMNS, ProfileData, ProfileFileError, load_profile_npy, read_profile, read_profile_csv
 from fitting.models import FORWARD_MODELS, ForwardModel, entry_transmittance, register_model, resolve_model
 from fitting.profile_fit import FitWarning, fit_jacobian_wrt_data, fit_profile, fit_profiles
@@ -28,6 +29,7 @@ __all__ = [
     "CORRELATION_LIMIT",
     "FORWARD_MODELS",
     "FitWarning",
+    "ImageFit",
     "ForwardModel",
     "LeastSquaresSolver",
     "ProfileData",
@@ -35,6 +37,7 @@ __all__ = [
     "ProfileFit",
     "SOLVERS",
     "entry_transmittance",
+    "fit_image",
     "fit_jacobian_wrt_data",
     "fit_profile",
     "fit_profiles",

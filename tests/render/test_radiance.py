@@ -48,12 +48,23 @@ def test_hg_phase_normalised():
 
 
 def test_single_scattering_matches_chandrasekhar_half_space():
-    # Index-matched, isotropic, no absorption: the single-scattering albedo at normal incidence is (1 - ln 2) / 2.
+    # Index-matched, isotropic, no absorption: the single-scattering albedo at normal incidence is
+    # 2 pi int_0^1 f_r mu dmu = (1 - ln 2) / 2.
     medium = jaxsss.Medium(jnp.array([0.0, 0.0]), jnp.array([1.0, 3.0]), 1.0)
-    share = rad.single_scattering_share(medium, n_nodes=128)
-    rd = jaxsss.medium_total_diffuse_reflectance(medium)
-    r1 = share * rd / (1 - share)
+    mu, w = _hemisphere(128)
+    eye = jnp.stack([jnp.sqrt(1 - mu**2), jnp.zeros_like(mu), mu], -1)
+    n = jnp.broadcast_to(jnp.array([0.0, 0.0, 1.0]), eye.shape)
+    light = jnp.broadcast_to(jnp.array([0.0, 0.0, 1.0]), (mu.shape[0], 1, 3))
+    f = rad.single_scattering(medium, n, eye, light, jnp.ones((mu.shape[0], 1, 2)))
+    r1 = 2 * jnp.pi * jnp.sum((w * mu)[:, None] * f, axis=0)
     np.testing.assert_allclose(r1, (1 - np.log(2)) / 2, rtol=1e-6)
+
+
+def test_single_scattering_share_bounds():
+    forward = rad.single_scattering_share(jaxsss.Medium(0.01, 1.0, 1.3, g=0.95))
+    iso = rad.single_scattering_share(jaxsss.Medium(0.01, 1.0, 1.3))
+    absorbing = rad.single_scattering_share(jaxsss.Medium(1.0, 1.0, 1.3))
+    assert 0 < float(forward[0]) < float(iso[0]) < float(absorbing[0]) < 1
 
 
 def test_single_scattering_scales_with_albedo_and_vanishes_under_tir():
@@ -101,6 +112,19 @@ def test_transmitted_flux_shapes_and_entry_fresnel():
     np.testing.assert_allclose(with_ind[:, 0], 0.5 * (expect + 2.0 * rad.F_dt_external(1.4)), rtol=1e-12)
 
 
+def test_disc_integral_limits():
+    medium = jaxsss.Medium(jnp.array([0.001, 0.05, 1.0]), jnp.array([1.0, 2.0, 0.5]), 1.4)
+    np.testing.assert_allclose(rad.disc_integral(1e6, medium), jaxsss.medium_total_diffuse_reflectance(medium),
+                               rtol=1e-12)
+    # Against quadrature of the profile over the disc.
+    x, w = np.polynomial.legendre.leggauss(200)
+    rho0 = 0.7
+    r = jnp.asarray(0.5 * rho0 * (x + 1))[:, None]
+    quad = jnp.sum(jnp.asarray(0.5 * rho0 * w)[:, None] * 2 * jnp.pi * r * jaxsss.dipole_profile(r, medium), axis=0)
+    np.testing.assert_allclose(rad.disc_integral(rho0, medium), quad, rtol=1e-10)
+    assert float(rad.disc_integral(0.0, medium)[0]) == 0.0
+
+
 def test_entity_flux_range_sums():
     rng = np.random.default_rng(0)
     flux = jnp.asarray(rng.random((10, 3)))
@@ -129,7 +153,16 @@ def test_pairs_equal_direct_sum_and_shared_channel():
     q, s, flux, pq, pe = _random_problem()
     medium = jaxsss.Medium(jnp.array([0.01, 0.05, 0.2]), jnp.array([1.0, 2.0, 3.0]), 1.3)
     a = rad.exitance_pairs(medium, q, s, flux, pq, pe)
-    b = rad.exitance_direct(medium, q, s, flux, block=4)
+    b = rad.exitance_direct(medium, q, s, flux, jnp.ones(40), 0.0, block=4)
+    # With a near disc: pairs inside rho0 are replaced by the disc integral times the mean near irradiance.
+    rho0 = 1.0
+    c = rad.exitance_direct(medium, q, s, flux, jnp.full(40, 0.5), rho0, block=4)
+    r = np.linalg.norm(np.asarray(q)[:, None] - np.asarray(s)[None], axis=-1)
+    near = r < rho0
+    prof = np.asarray(jaxsss.dipole_profile(jnp.asarray(r)[..., None], medium))
+    far = np.sum(np.where(near[..., None], 0, prof) * np.asarray(flux)[None], axis=1)
+    mean_irr = (near[..., None] * np.asarray(flux)[None]).sum(1) / np.maximum(0.5 * near.sum(1), 1e-300)[:, None]
+    np.testing.assert_allclose(c, far + mean_irr * np.asarray(rad.disc_integral(rho0, medium)), rtol=1e-12)
     assert a.shape == b.shape == (7, 3)
     np.testing.assert_allclose(a, b, rtol=1e-12)
     grey = jaxsss.Medium(jnp.full(3, 0.02), jnp.full(3, 1.5), 1.3)

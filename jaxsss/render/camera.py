@@ -1,0 +1,72 @@
+"""Pinhole camera rays (NumPy).
+
+Image convention: ``(H, W)`` with row 0 at the top; ``fov_deg`` is the vertical field of view. With ``spp > 1``
+each pixel gets ``spp`` stratified jittered rays (deterministic for a seed) and the pixel is their mean.
+"""
+
+from __future__ import annotations
+
+from typing import NamedTuple
+
+import numpy as np
+
+__all__ = ["CameraRays", "camera_frame", "camera_rays"]
+
+
+class CameraRays(NamedTuple):
+    """``R = H * W * spp`` primary rays."""
+
+    origins: np.ndarray  # (R, 3) mm
+    directions: np.ndarray  # (R, 3) unit
+    pixel: np.ndarray  # (R,) int64 flat pixel index row * W + col
+    shape: tuple  # (H, W)
+    spp: int
+
+
+def camera_frame(camera):
+    """``(forward, right, up)`` orthonormal vectors of the camera."""
+    forward = np.asarray(camera.look_at, dtype=np.float64) - np.asarray(camera.position, dtype=np.float64)
+    forward /= np.linalg.norm(forward)
+    right = np.cross(forward, np.asarray(camera.up, dtype=np.float64))
+    right /= np.linalg.norm(right)
+    up = np.cross(right, forward)
+    return forward, right, up
+
+
+def _jitter(spp: int, rng: np.random.Generator, n_pixels: int) -> np.ndarray:
+    """``(n_pixels, spp, 2)`` sub-pixel offsets in ``[0, 1)``: stratified on a near-square grid, jittered."""
+    if spp == 1:
+        return np.full((n_pixels, 1, 2), 0.5)
+    nx = int(np.ceil(np.sqrt(spp)))
+    ny = int(np.ceil(spp / nx))
+    cells = np.stack(np.meshgrid(np.arange(nx), np.arange(ny), indexing="xy"), axis=-1).reshape(-1, 2)[:spp]
+    u = rng.random((n_pixels, spp, 2))
+    return (cells[None, :, :] + u) / np.array([nx, ny])
+
+
+def camera_rays(camera, resolution=None, seed: int = 0) -> CameraRays:
+    """Primary rays of a pinhole camera.
+
+    Args:
+        camera: a :class:`jaxsss.render.scene.Camera` (position, look_at, up in mm; ``fov_deg``; ``resolution``
+            ``(W, H)``; ``spp``).
+        resolution: optional ``(W, H)`` overriding the camera's.
+        seed: jitter seed (only used when ``spp > 1``).
+    """
+    width, height = (int(v) for v in (resolution or camera.resolution))
+    spp = int(camera.spp)
+    forward, right, up = camera_frame(camera)
+    half_h = np.tan(np.radians(camera.fov_deg) / 2.0)
+    half_w = half_h * width / height
+    n_pix = width * height
+    offs = _jitter(spp, np.random.default_rng(seed), n_pix)
+    rows, cols = np.divmod(np.arange(n_pix), width)
+    px = (cols[:, None] + offs[..., 0]) / width  # (n_pix, spp) in [0, 1) left to right
+    py = (rows[:, None] + offs[..., 1]) / height  # top to bottom
+    sx = (2.0 * px - 1.0) * half_w
+    sy = (1.0 - 2.0 * py) * half_h
+    d = forward + sx[..., None] * right + sy[..., None] * up
+    d = (d / np.linalg.norm(d, axis=-1, keepdims=True)).reshape(-1, 3)
+    origins = np.broadcast_to(np.asarray(camera.position, dtype=np.float64), d.shape).copy()
+    pixel = np.repeat(np.arange(n_pix), spp)
+    return CameraRays(origins, d, pixel, (height, width), spp)

@@ -1,0 +1,327 @@
+"""Geometry-only interaction lists for the hierarchical sum (Jensen and Buhler 2002, section 4.2, Eq. 12).
+
+For each query point x (a shaded surface point) the octree is traversed from the root. A node v is accepted as a
+whole when x lies outside v's cell and its solid-angle estimate is small (Eq. 12),
+
+    Delta_omega = A_v / |x - P_v|^2 < eps,
+
+otherwise it is opened and its children are tested; samples are accepted whenever they are reached. The accepted
+entities of one query form a cut of the tree: their sample ranges partition the samples (or, with ``r_cut``, those
+that may lie within ``r_cut``). The cut depends only on geometry, so it is computed once here, in NumPy, as a flat
+list of (query, entity) pairs sorted by query; the material-dependent radiant exitance is then a JAX segment sum of
+``Phi_v * R_d(|x - P_v|)`` over the pairs.
+"""
+
+from __future__ import annotations
+
+import os
+from concurrent.futures import ThreadPoolExecutor
+from typing import NamedTuple
+
+import numpy as np
+
+from jaxsss.render.octree import MORTON_BITS, Octree
+
+__all__ = ["Interactions", "build_interactions", "direct_interactions"]
+
+MAX_DIRECT_PAIRS = 50_000_000
+_MAX_FRONTIER = 1 << 17  # (query, node) pairs processed per traversal step; bounds temporary memory
+_INT32_MAX = np.iinfo(np.int32).max
+
+
+class Interactions(NamedTuple):
+    """(query, entity) pairs of the hierarchical sum, sorted by query, then entity.
+
+    Attributes:
+        query: ``(K,)`` int32 query index, ascending (segment ids for ``jax.ops.segment_sum`` with
+            ``indices_are_sorted=True``).
+        entity: ``(K,)`` int32 octree entity id (a sorted sample if ``< N``, else an internal node).
+        n_queries: number of query points ``Q`` (queries may have no pairs).
+        eps: the solid-angle threshold used (0.0 for :func:`direct_interactions`).
+    """
+
+    query: np.ndarray
+    entity: np.ndarray
+    n_queries: int
+    eps: float
+
+    def counts(self) -> np.ndarray:
+        """``(Q,)`` number of interactions of each query."""
+        return np.bincount(self.query, minlength=self.n_queries)
+
+    @property
+    def n_pairs(self) -> int:
+        """``K``: total number of (query, entity) pairs."""
+        return int(self.query.shape[0])
+
+
+def _check_points(query_points) -> np.ndarray:
+    try:
+        x = np.asarray(query_points, dtype=np.float64)
+    except (TypeError, ValueError) as err:
+        raise ValueError("build_interactions(query_points=...) is not a numeric (Q, 3) array") from err
+    if x.ndim != 2 or x.shape[1] != 3:
+        raise ValueError(f"build_interactions(query_points=...) has shape {x.shape}; expected (Q, 3) in mm")
+    bad = ~np.isfinite(x)
+    if bad.any():
+        i = tuple(int(k) for k in np.argwhere(bad)[0])
+        raise ValueError(f"build_interactions(query_points={x[i]:g}) (element {i}) must be finite")
+    if x.shape[0] > _INT32_MAX:
+        raise ValueError(f"build_interactions(query_points=...) has {x.shape[0]} queries; at most {_INT32_MAX}")
+    return x
+
+
+def _check_positive(value, name: str, allow_none: bool) -> float | None:
+    if value is None and allow_none:
+        return None
+    try:
+        v = float(value)
+    except (TypeError, ValueError) as err:
+        raise ValueError(f"build_interactions({name}={value!r}) is not a number in (0, inf)") from err
+    if not (v > 0 and np.isfinite(v)):
+        raise ValueError(f"build_interactions({name}={v:g}) is outside the allowed range (0, inf)")
+    return v
+
+
+def _expand(q: np.ndarray, first: np.ndarray, count: np.ndarray):
+    """Pairs ``(q[j], first[j] + i)`` for ``i < count[j]``, in order."""
+    total = int(count.sum())
+    q_new = np.repeat(q, count)
+    ends = np.cumsum(count)
+    offset = np.arange(total, dtype=np.int64) - np.repeat(ends - count, count)
+    return q_new, np.repeat(first, count) + offset
+
+
+class _Tables(NamedTuple):
+    """Per-internal-node arrays (indexed by ``entity - N``), packed for fast gathers."""
+
+    n: int
+    area: np.ndarray
+    centroid: np.ndarray
+    lo: np.ndarray
+    hi: np.ndarray
+    shift: np.ndarray
+    cell_code: np.ndarray
+    first_child: np.ndarray
+    n_child: np.ndarray
+    is_leaf: np.ndarray
+    samples: np.ndarray
+    tol: float
+    entity_bits: int
+
+
+def _tables(octree: Octree) -> _Tables:
+    n = octree.n_samples
+    ch = octree.children[n:]
+    n_child = np.count_nonzero(ch >= 0, axis=1)
+    first = ch[:, 0]
+    # The traversal relies on each node's children being consecutive entity ids (true by construction).
+    consecutive = np.where(ch >= 0, ch - first[:, None] == np.arange(8), True).all()
+    if not consecutive or (n_child == 0).any():
+        raise ValueError("build_interactions(octree=...) is not an Octree from build_octree (children not consecutive)")
+    return _Tables(
+        n=n,
+        area=np.ascontiguousarray(octree.area[n:]),
+        centroid=np.ascontiguousarray(octree.centroid[n:]),
+        lo=np.ascontiguousarray(octree.lo[n:]),
+        hi=np.ascontiguousarray(octree.hi[n:]),
+        shift=3 * (MORTON_BITS - octree.level[n:]),
+        cell_code=octree.cell_codes()[n:],
+        first_child=first.astype(np.int64),
+        n_child=n_child.astype(np.int64),
+        is_leaf=octree.is_leaf_node[n:].copy(),
+        samples=np.ascontiguousarray(octree.centroid[:n]),
+        tol=1e-9 * octree.side,  # rounding margin of the cell boxes for the r_cut test
+        entity_bits=max(1, (octree.n_entities - 1).bit_length()),
+    )
+
+
+def _traverse_chunk(t: _Tables, x: np.ndarray, eps: float, r_cut: float | None, code: np.ndarray):
+    """Accepted pairs for the queries ``x`` of one chunk, as sorted keys ``(local query << entity_bits) | entity``.
+
+    ``code`` holds the queries' Morton codes (``-1`` outside the cube). The frontier of (query, node) pairs is a
+    stack of arrays of at most ``_MAX_FRONTIER`` pairs, which bounds the temporaries whatever the chunk size.
+    """
+    n = t.n
+    out_q, out_e = [], []
+    stack = [(np.arange(x.shape[0], dtype=np.int64), np.zeros(x.shape[0], dtype=np.int64))]  # node index = e - N
+    r2 = None if r_cut is None else (r_cut + t.tol) ** 2
+    while stack:
+        q, v = stack.pop()
+        if q.size > _MAX_FRONTIER:
+            stack.extend((q[i : i + _MAX_FRONTIER], v[i : i + _MAX_FRONTIER]) for i in range(0, q.size, _MAX_FRONTIER))
+            continue
+        xq = x[q]
+        if r2 is not None:
+            # Drop nodes whose cell lies entirely beyond r_cut of the query.
+            gap = np.maximum(np.maximum(t.lo[v] - xq, xq - t.hi[v]), 0.0)
+            near = np.einsum("ij,ij->i", gap, gap) <= r2
+            q, v, xq = q[near], v[near], xq[near]
+        # Eq. 12: accept v when A_v / |x - P_v|^2 < eps and x is outside v's cell (same cell code at v's level).
+        d = xq - t.centroid[v]
+        cand = np.flatnonzero(t.area[v] < eps * np.einsum("ij,ij->i", d, d))
+        vc = v[cand]
+        inside = (code[q[cand]] >> t.shift[vc]) == t.cell_code[vc]
+        accept = np.zeros(q.size, dtype=bool)
+        accept[cand[~inside]] = True
+        out_q.append(q[accept].astype(np.int32))
+        out_e.append((v[accept] + n).astype(np.int32))
+        # Open the rest: leaf nodes hand over their samples (always accepted), others push their child nodes.
+        keep = ~accept
+        q, v = q[keep], v[keep]
+        leaf = t.is_leaf[v]
+        qs, es = _expand(q[leaf], t.first_child[v[leaf]], t.n_child[v[leaf]])
+        if r_cut is not None:
+            d = x[qs] - t.samples[es]
+            near = np.einsum("ij,ij->i", d, d) <= r_cut**2
+            qs, es = qs[near], es[near]
+        out_q.append(qs.astype(np.int32))
+        out_e.append(es.astype(np.int32))
+        inner = ~leaf
+        if inner.any():
+            qn, en = _expand(q[inner], t.first_child[v[inner]], t.n_child[v[inner]])
+            stack.append((qn, en - n))
+    # Sort by (query, entity) through one integer key per pair, filled part by part (no concatenated copies);
+    # int32 keys (twice as fast to sort) when the local query and entity bits fit in 31 bits.
+    shift = t.entity_bits
+    dtype = np.int32 if (x.shape[0] - 1).bit_length() + shift <= 31 else np.int64
+    key = np.empty(sum(a.size for a in out_q), dtype=dtype)
+    pos = 0
+    for qa, ea in zip(out_q, out_e, strict=True):
+        part = key[pos : pos + qa.size]
+        part[...] = qa
+        part <<= shift
+        part |= ea
+        pos += qa.size
+    key.sort()
+    return key
+
+
+def _default_threads() -> int:
+    try:
+        return max(1, len(os.sched_getaffinity(0)))
+    except AttributeError:  # pragma: no cover - not on Linux
+        return max(1, os.cpu_count() or 1)
+
+
+def build_interactions(
+    octree: Octree,
+    query_points,
+    eps: float,
+    *,
+    r_cut: float | None = None,
+    chunk_size: int = 4096,
+    progress: bool = False,
+    n_threads: int | None = None,
+) -> Interactions:
+    """Interaction list of the hierarchical sum: for every query, the octree cut chosen by Eq. 12.
+
+    A node ``v`` is accepted for query ``x`` when ``x`` is outside ``v``'s cell and ``A_v / |x - P_v|^2 < eps``;
+    otherwise its children are tested. Samples are accepted whenever reached. "Outside the cell" uses the octree's
+    quantised grid (:meth:`Octree.point_codes`): cells are half-open boxes ``[lo, hi)``, the rule that put the
+    samples into them, so a query at a sample's position is inside every cell holding that sample.
+
+    Args:
+        octree: from :func:`jaxsss.render.octree.build_octree`.
+        query_points: ``(Q, 3)`` query positions in mm.
+        eps: solid-angle threshold of Eq. 12, in ``(0, inf)``; smaller is more accurate and makes more pairs.
+        r_cut: optional cut-off radius in mm, in ``(0, inf)``. A node is dropped when its cell box is farther than
+            ``r_cut`` from the query, a sample when it is; every sample within ``r_cut`` stays covered exactly once
+            (accepted nodes may also cover samples beyond ``r_cut``).
+        chunk_size: queries traversed together (vectorised); the traversal's temporaries are bounded separately.
+        progress: show a tqdm bar over chunks.
+        n_threads: worker threads over chunks (NumPy releases the GIL in the heavy steps); default: the usable
+            cores. The result does not depend on it.
+
+    Returns:
+        :class:`Interactions`, sorted by query then entity. Without ``r_cut`` each query's accepted entities'
+        sample ranges ``[start, stop)`` partition ``0 .. N-1``.
+    """
+    if not isinstance(octree, Octree):
+        raise TypeError(f"build_interactions(octree={type(octree).__name__}) must be an Octree from build_octree")
+    x = _check_points(query_points)
+    eps = _check_positive(eps, "eps", allow_none=False)
+    r_cut = _check_positive(r_cut, "r_cut", allow_none=True)
+    if not (isinstance(chunk_size, (int, np.integer)) and chunk_size >= 1):
+        raise ValueError(f"build_interactions(chunk_size={chunk_size!r}) must be an integer in [1, inf)")
+    if n_threads is None:
+        n_threads = _default_threads()
+    if not (isinstance(n_threads, (int, np.integer)) and n_threads >= 1):
+        raise ValueError(f"build_interactions(n_threads={n_threads!r}) must be an integer in [1, inf)")
+    if octree.n_entities > _INT32_MAX:
+        raise ValueError(f"build_interactions(octree=...) has {octree.n_entities} entities; int32 ids need <= {_INT32_MAX}")
+    t = _tables(octree)
+    n_q = x.shape[0]
+    code = octree.point_codes(x)
+
+    def run(q0: int):
+        sl = slice(q0, q0 + chunk_size)
+        key = _traverse_chunk(t, x[sl], eps, r_cut, code[sl])
+        # Chunks come in query order, so concatenating the sorted chunks sorts the whole list.
+        query = np.empty(key.size, dtype=np.int32)
+        entity = np.empty(key.size, dtype=np.int32)
+        np.right_shift(key, t.entity_bits, out=query, casting="unsafe")  # < chunk_size: fits
+        query += q0
+        np.bitwise_and(key, (1 << t.entity_bits) - 1, out=entity, casting="unsafe")  # < 2**31: fits
+        return query, entity
+
+    starts = range(0, n_q, chunk_size)
+    bar = None
+    if progress:
+        from tqdm.auto import tqdm
+
+        bar = tqdm(total=len(starts), desc="interactions", unit="chunk")
+    queries, entities = [], []
+    with ThreadPoolExecutor(max_workers=min(n_threads, max(len(starts), 1))) as pool:
+        for qc, ec in pool.map(run, starts):
+            queries.append(qc)
+            entities.append(ec)
+            if bar is not None:
+                bar.update(1)
+    if bar is not None:
+        bar.close()
+    return Interactions(_concat_freeing(queries), _concat_freeing(entities), int(n_q), eps)
+
+
+def _concat_freeing(parts: list) -> np.ndarray:
+    """Concatenate int32 arrays, releasing each part once copied (peak memory ~ one copy of the result)."""
+    out = np.empty(sum(a.size for a in parts), dtype=np.int32)
+    pos = 0
+    parts.reverse()
+    while parts:
+        a = parts.pop()
+        out[pos : pos + a.size] = a
+        pos += a.size
+    return out
+
+
+def direct_interactions(octree: Octree, n_queries: int, query_subset=None) -> Interactions:
+    """Every query with every sample (the exact O(Q N) sum), for small problems and tests.
+
+    Args:
+        octree: gives the samples (entity ids ``0 .. N-1``).
+        n_queries: ``Q``, the number of query points.
+        query_subset: optional indices of the queries to include (the others get no pairs); default all.
+
+    Raises:
+        ValueError: beyond ``5e7`` pairs, with the pair count.
+    """
+    if not (isinstance(n_queries, (int, np.integer)) and 0 <= n_queries <= _INT32_MAX):
+        raise ValueError(f"direct_interactions(n_queries={n_queries!r}) must be an integer in [0, {_INT32_MAX}]")
+    if query_subset is None:
+        qs = np.arange(n_queries, dtype=np.int64)
+    else:
+        qs = np.unique(np.asarray(query_subset, dtype=np.int64).ravel())
+        if qs.size and (qs[0] < 0 or qs[-1] >= n_queries):
+            bad = qs[0] if qs[0] < 0 else qs[-1]
+            raise ValueError(f"direct_interactions(query_subset={bad}) is outside the allowed range [0, {n_queries})")
+    n = octree.n_samples
+    pairs = qs.size * n
+    if pairs > MAX_DIRECT_PAIRS:
+        raise ValueError(
+            f"direct_interactions(...) would make {pairs} pairs ({qs.size} queries x {n} samples); "
+            f"the limit is {MAX_DIRECT_PAIRS:.0e}, use build_interactions"
+        )
+    query = np.repeat(qs, n).astype(np.int32)
+    entity = np.tile(np.arange(n, dtype=np.int32), qs.size)
+    return Interactions(query, entity, int(n_queries), 0.0)

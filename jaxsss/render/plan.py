@@ -1,0 +1,173 @@
+"""The scene plan: which passes and terms a scene needs, decided before rendering, with one line of reason each.
+
+The plan is what ``jaxsss render --explain`` prints and what the JSON report records. Each decision is a
+:class:`PlanItem`; the flags the renderer acts on are fields of :class:`ScenePlan`. A scene's ``[render]`` table can
+force a term ``"on"`` or ``"off"``; ``"auto"`` lets the plan decide:
+
+- **shadow rays**: left out for a convex mesh alone in the scene (a light is then blocked exactly when it is below
+  the horizon, which the cosine already handles);
+- **indirect bounce**: left out for a lone object (nothing else to bounce off; self inter-reflection is not modelled);
+- **single scattering**: left out when its estimated share of the exitance
+  (:func:`~jaxsss.render.radiance.single_scattering_share`) is below the tolerance;
+- **cut-off radius**: pairs farther than ``ln(1/tol) / sigma_tr`` are dropped when that radius is smaller than the
+  object;
+- **shared channel**: the profile is evaluated once when all channels have identical coefficients;
+- **multipole**: not needed where the object is many ``l_d`` thick (the renderer evaluates the dipole; a thin object
+  gets a warning).
+"""
+
+from __future__ import annotations
+
+import math
+from typing import Any, NamedTuple
+
+import numpy as np
+
+from jaxsss.render.samples import sample_count
+
+__all__ = ["THICK_IN_LD", "PlanItem", "ScenePlan", "make_plan"]
+
+THICK_IN_LD = 10.0
+"""An object at least this many diffuse mean free paths thick is treated as semi-infinite (no multipole)."""
+
+
+class PlanItem(NamedTuple):
+    """One decision: ``name``, whether the term or pass is ``included``, and the one-line ``reason``."""
+
+    name: str
+    included: bool
+    reason: str
+
+
+class ScenePlan(NamedTuple):
+    """The decisions for one scene (see the module docstring)."""
+
+    method: str
+    eps: float
+    n_samples: int
+    shadows: bool
+    indirect: bool
+    single_scattering: bool
+    specular: bool
+    r_cut: float | None
+    shared_channel: bool
+    items: tuple[PlanItem, ...]
+
+    def explain(self) -> str:
+        """The plan as text, one line per decision."""
+        width = max(len(i.name) for i in self.items)
+        return "\n".join(f"{'+' if i.included else '-'} {i.name:<{width}}  {i.reason}" for i in self.items)
+
+    def to_dict(self) -> dict[str, Any]:
+        out = {k: getattr(self, k) for k in self._fields if k != "items"}
+        out["items"] = [i._asdict() for i in self.items]
+        return out
+
+
+def _forced(setting: str, name: str):
+    if setting == "on":
+        return True, f"forced on by [render].{name}"
+    if setting == "off":
+        return False, f"forced off by [render].{name}"
+    return None, ""
+
+
+def make_plan(scene, *, method: str | None = None, eps: float | None = None, cutoff: bool = True,
+              share_channels: bool = True) -> ScenePlan:
+    """Decide the passes and terms for ``scene``.
+
+    Args:
+        scene: a :class:`~jaxsss.render.scene.Scene`.
+        method: ``"hierarchical"`` or ``"direct"``; defaults to the scene's.
+        eps: the solid-angle threshold of Eq. 12; defaults to the scene's.
+        cutoff: allow the cut-off radius (fitting turns it off: it depends on the material being fitted).
+        share_channels: allow evaluating one channel for identical channels (fitting turns it off).
+    """
+    from jaxsss.render.radiance import single_scattering_share
+
+    settings = scene.render
+    medium = scene.material.medium
+    tol = float(settings.tolerance)
+    method = method or settings.method
+    eps = float(settings.eps if eps is None else eps)
+    items: list[PlanItem] = []
+
+    if method == "direct":
+        items.append(PlanItem("method", True, "direct sum over every sample (the reference; O(pixels x samples))"))
+    else:
+        items.append(PlanItem("method", True, f"hierarchical sum, solid-angle threshold eps = {eps:g} sr (Eq. 12)"))
+
+    l_u = float(np.min(np.asarray(medium.l_u)))
+    n_samples, why = sample_count(float(scene.mesh.area), l_u, settings.density, settings.max_samples)
+    items.append(PlanItem("irradiance samples", True, f"{n_samples} samples: {why}"))
+
+    lone = len(scene.occluders) == 0
+    shadows, why = _forced(settings.shadows, "shadows")
+    if shadows is None:
+        convex = bool(scene.mesh.is_convex)
+        shadows = not (convex and lone)
+        why = ("convex mesh alone in the scene: n.l > 0 decides visibility exactly" if not shadows else
+               ("the mesh is not convex: it can shadow itself" if lone else "occluders can cast shadows"))
+    items.append(PlanItem("shadow rays", shadows, why))
+
+    indirect, why = _forced(settings.indirect, "indirect")
+    if indirect is None:
+        indirect = not lone
+        why = ("lone object in an empty scene: nothing to bounce off (self inter-reflection is not modelled)"
+               if lone else f"{len(scene.occluders)} occluder(s) reflect light onto the object (one bounce)")
+    items.append(PlanItem("indirect bounce", indirect, why))
+
+    share = float(np.max(np.asarray(single_scattering_share(medium))))
+    single, why = _forced(settings.single_scattering, "single_scattering")
+    if single is None:
+        single = share >= tol
+        why = f"estimated share of the exitance {share:.2g} {'>=' if single else '<'} tolerance {tol:g}"
+    else:
+        why = f"{why} (estimated share {share:.2g})"
+    items.append(PlanItem("single scattering", single, why))
+
+    specular = scene.material.specular_roughness is not None
+    items.append(PlanItem("specular highlights", specular,
+                          f"GGX, roughness {scene.material.specular_roughness:g}" if specular
+                          else "the material has no specular_roughness"))
+
+    sigma_tr = float(np.min(np.asarray(medium.sigma_tr)))
+    size = float(np.linalg.norm(scene.mesh.extents))
+    r_cut = math.log(1.0 / tol) / sigma_tr if sigma_tr > 0 else math.inf
+    if not cutoff or method == "direct":
+        items.append(PlanItem("cut-off radius", False, "not used for this evaluation (every pair is summed)"))
+        r_cut = None
+    elif r_cut < size:
+        items.append(PlanItem("cut-off radius", True,
+                              f"exp(-sigma_tr r) < {tol:g} beyond r = {r_cut:.4g} mm (object {size:.4g} mm across)"))
+    else:
+        items.append(PlanItem("cut-off radius", False,
+                              f"ln(1/tol)/sigma_tr = {r_cut:.4g} mm exceeds the object ({size:.4g} mm): nothing to cut"))
+        r_cut = None
+
+    sa, ss = np.atleast_1d(np.asarray(medium.sigma_a)), np.atleast_1d(np.asarray(medium.sigma_s_prime))
+    identical = sa.size > 1 and bool(np.all(sa == sa[0]) and np.all(ss == ss[0]))
+    shared = share_channels and identical
+    items.append(PlanItem("shared channel", shared,
+                          "all channels have identical coefficients: the profile is evaluated once" if shared else
+                          ("channels differ: one profile per channel" if not identical else
+                           "identical channels, but this evaluation keeps them separate (fitting)")))
+
+    l_d = float(np.max(np.asarray(medium.l_d)))
+    thickness = float(np.min(scene.mesh.extents))
+    ratio = thickness / l_d
+    if ratio >= THICK_IN_LD:
+        items.append(PlanItem("multipole", False,
+                              f"the object is {ratio:.3g} l_d thick (>= {THICK_IN_LD:g}): the dipole's half-space "
+                              "holds"))
+    else:
+        items.append(PlanItem("multipole", False,
+                              f"WARNING: the object is only {ratio:.3g} l_d thick; a second boundary matters but this "
+                              "renderer evaluates the dipole, which overestimates the reflectance of thin parts"))
+
+    if scene.material.texture is not None:
+        items.append(PlanItem("texture", True, "the texture scales the irradiance samples (the paper's face example)"))
+    if scene.occluders:
+        items.append(PlanItem("occluders", True, f"{len(scene.occluders)} opaque Lambertian object(s) shaded "
+                                                 "directly"))
+    return ScenePlan(method, eps, n_samples, shadows, indirect, single, specular, r_cut, shared, tuple(items))

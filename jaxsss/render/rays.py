@@ -1,0 +1,146 @@
+"""Ray casting against a scene's meshes with trimesh and embreex (NumPy, outside JAX).
+
+One :class:`SceneGeometry` holds the translucent object and every opaque occluder as a single concatenated mesh, so
+one Embree BVH answers camera rays, shadow rays and bounce rays. Each face remembers which object it came from.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from typing import NamedTuple
+
+import numpy as np
+import trimesh
+
+__all__ = ["CREASE_DEG", "OBJECT_NONE", "OBJECT_TRANSLUCENT", "Hits", "SceneGeometry", "corner_normals"]
+
+CREASE_DEG = 40.0
+"""Faces meeting at more than this angle are not smoothed across (the edges of a box stay sharp)."""
+
+OBJECT_NONE = -1
+"""Object id of a ray that hits nothing."""
+OBJECT_TRANSLUCENT = 0
+"""Object id of the translucent mesh; occluders are numbered from 1 in scene order."""
+
+
+class Hits(NamedTuple):
+    """First hits of a batch of rays (``R`` rays)."""
+
+    hit: np.ndarray  # (R,) bool
+    t: np.ndarray  # (R,) mm along the (unit) direction; inf where nothing is hit
+    position: np.ndarray  # (R, 3) mm; NaN where nothing is hit
+    face: np.ndarray  # (R,) int64 face of the concatenated mesh; -1 where nothing is hit
+    obj: np.ndarray  # (R,) int64 object id (OBJECT_TRANSLUCENT, 1.. for occluders, OBJECT_NONE)
+
+
+def _unit(v: np.ndarray) -> np.ndarray:
+    n = np.linalg.norm(v, axis=-1, keepdims=True)
+    return v / np.where(n > 0, n, 1.0)
+
+
+class SceneGeometry:
+    """The translucent mesh plus opaque occluders, with an Embree ray intersector.
+
+    Args:
+        mesh: the translucent object (world mm).
+        occluders: opaque meshes (world mm), numbered 1.. in order.
+    """
+
+    def __init__(self, mesh: trimesh.Trimesh, occluders: Sequence[trimesh.Trimesh] = ()):
+        self.meshes = (mesh, *occluders)
+        parts = [trimesh.Trimesh(m.vertices, m.faces, process=False) for m in self.meshes]
+        self.combined = trimesh.util.concatenate(parts) if len(parts) > 1 else parts[0]
+        self.face_object = np.concatenate(
+            [np.full(len(m.faces), i, dtype=np.int64) for i, m in enumerate(self.meshes)]
+        )
+        self.face_offset = np.cumsum([0] + [len(m.faces) for m in self.meshes])
+        self._corner_normals = corner_normals(self.combined)
+        extent = float(np.max(self.combined.extents))
+        self.offset = 1e-5 * max(extent, 1.0)  # self-intersection offset along the normal, mm
+        self.intersector = _intersector(self.combined)
+
+    @property
+    def scale(self) -> float:
+        """The largest extent of the scene, mm."""
+        return float(np.max(self.combined.extents))
+
+    def first_hit(self, origins: np.ndarray, directions: np.ndarray, *, chunk: int = 1 << 20) -> Hits:
+        """First intersection of each ray (``origins`` and unit ``directions`` of shape ``(R, 3)``)."""
+        origins = np.asarray(origins, dtype=np.float64)
+        directions = _unit(np.asarray(directions, dtype=np.float64))
+        n = len(origins)
+        t = np.full(n, np.inf)
+        face = np.full(n, -1, dtype=np.int64)
+        pos = np.full((n, 3), np.nan)
+        for s in range(0, n, chunk):
+            o, d = origins[s : s + chunk], directions[s : s + chunk]
+            loc, ray, tri = self.intersector.intersects_location(o, d, multiple_hits=False)
+            if len(ray):
+                idx = ray + s
+                pos[idx] = loc
+                face[idx] = tri
+                t[idx] = np.einsum("ij,ij->i", loc - origins[idx], directions[idx])
+        hit = face >= 0
+        obj = np.where(hit, self.face_object[np.maximum(face, 0)], OBJECT_NONE)
+        return Hits(hit, t, pos, face, obj)
+
+    def visible(self, points: np.ndarray, normals: np.ndarray, directions: np.ndarray, max_t=None) -> np.ndarray:
+        """Shadow test: whether a ray from each surface point along unit ``directions`` escapes.
+
+        The origin is pushed off the surface along ``normals`` (on the side the ray leaves). With ``max_t`` (mm,
+        shape ``(R,)``, e.g. the distance to a point light) only hits closer than that block.
+        """
+        directions = _unit(np.asarray(directions, dtype=np.float64))
+        side = np.sign(np.einsum("ij,ij->i", normals, directions))[:, None]
+        origins = points + self.offset * side * normals
+        hits = self.first_hit(origins, directions)
+        if max_t is None:
+            return ~hits.hit
+        return ~(hits.hit & (hits.t < np.asarray(max_t) - 2 * self.offset))
+
+    def shading_normals(self, face: np.ndarray, points: np.ndarray) -> np.ndarray:
+        """Smooth (barycentric vertex-normal) normals at surface points on faces of the concatenated mesh."""
+        tri = self.combined.triangles[face]
+        bary = trimesh.triangles.points_to_barycentric(tri, points)
+        bary = np.clip(np.nan_to_num(bary, nan=1.0 / 3.0), 0.0, 1.0)
+        vn = self._corner_normals[face]  # (R, 3 corners, 3)
+        n = _unit(np.einsum("rv,rvk->rk", bary, vn))
+        # Fall back to the face normal where the vertex normals cancel (creases of unmerged meshes).
+        fn = self.combined.face_normals[face]
+        bad = ~np.isfinite(n).all(axis=1) | (np.linalg.norm(n, axis=1) < 0.5)
+        n[bad] = fn[bad]
+        return n
+
+
+def corner_normals(mesh: trimesh.Trimesh, crease_deg: float = CREASE_DEG) -> np.ndarray:
+    """``(F, 3, 3)`` smooth normals at each face's corners: the area-weighted mean of the normals of the faces around
+    that vertex that lie within ``crease_deg`` of this face (so flat faces of a box keep their own normal)."""
+    fn = mesh.face_normals
+    weighted = fn * mesh.area_faces[:, None]
+    vf = mesh.vertex_faces  # (V, max valence), -1 padded
+    cos_crease = np.cos(np.radians(crease_deg))
+    out = np.empty((len(mesh.faces), 3, 3))
+    for corner in range(3):
+        nbr = vf[mesh.faces[:, corner]]  # (F, valence)
+        valid = nbr >= 0
+        nb = np.maximum(nbr, 0)
+        keep = valid & (np.einsum("fk,fvk->fv", fn, fn[nb]) >= cos_crease)
+        n = np.einsum("fv,fvk->fk", keep.astype(np.float64), weighted[nb])
+        out[:, corner] = n
+    norm = np.linalg.norm(out, axis=-1, keepdims=True)
+    return np.where(norm > 0, out / np.where(norm > 0, norm, 1.0), fn[:, None, :])
+
+
+def _intersector(mesh: trimesh.Trimesh):
+    """Embree (embreex) when available, else trimesh's pure-Python intersector (slow; a warning says so)."""
+    try:
+        from trimesh.ray.ray_pyembree import RayMeshIntersector
+
+        return RayMeshIntersector(mesh)
+    except ImportError:  # pragma: no cover - embreex is a declared dependency
+        import warnings
+
+        warnings.warn("embreex is not available: ray casting falls back to trimesh's slow intersector", stacklevel=3)
+        from trimesh.ray.ray_triangle import RayMeshIntersector
+
+        return RayMeshIntersector(mesh)

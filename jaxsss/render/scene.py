@@ -1,0 +1,663 @@
+"""Scene files: a TOML description of one translucent mesh, its material, lights, camera and opaque occluders.
+
+:func:`load_scene` reads a file, :func:`parse_scene` a dict (as from :mod:`tomllib`); both validate everything once
+and return a frozen :class:`Scene`. Bad input raises :class:`SceneError` (a ``ValueError``) naming the file, the
+dotted key and, for values, the value and the allowed range, e.g.::
+
+    examples/x.toml: [material.sigma_a] -0.1 (element 0) is outside the allowed range [0, inf)
+
+Relative file paths (meshes, textures, the environment map) resolve against the scene file's directory.
+
+Schema (units: mm, 1/mm, degrees; "3 values" means ``[x, y, z]`` or ``[r, g, b]``; colours may be one number)::
+
+    [mesh]                    # exactly one of builtin / file
+    builtin = "teapot"        # sphere | box | slab | torus | teapot (jaxsss.render.meshes.BUILTIN_MESHES)
+    size = 60.0               # that builtin's parameters: radius, subdivisions (sphere); extents, subdivisions
+                              # (box); width, depth, thickness, subdivisions (slab); major_radius, minor_radius,
+                              # major_sections, minor_sections (torus); size, resolution (teapot)
+    file = "bunny.ply"        # any mesh file trimesh reads, relative to the scene file
+    scale = 1.0               # > 0; one number or 3 values
+    rotate_deg = [0, 0, 0]    # about x, then y, then z (degrees)
+    translate = [0, 0, 0]     # mm, applied last
+    require_watertight = false
+
+    [material]                # exactly one of: name | sigma_a + sigma_s_prime | rd + ld
+    name = "marble"           # a measured material (jaxsss.list_materials(); case-insensitive)
+    sigma_a = [0.0021, 0.0041, 0.0071]   # absorption, 1/mm, >= 0; one number or 3 values (R, G, B)
+    sigma_s_prime = [2.19, 2.62, 3.00]   # reduced scattering, 1/mm, >= 0
+    rd = [0.8, 0.6, 0.5]      # total diffuse reflectance in (0, 1) (jaxsss.from_rd_ld)
+    ld = [5.0, 3.0, 2.0]      # diffuse mean free path, mm, > 0
+    eta = 1.3                 # n_inside / n_outside, > 0; default: the table's value for name, else 1.3
+    g = 0.0                   # optional Henyey-Greenstein anisotropy in (-1, 1)
+    texture = "face.png"      # optional 8-bit (or 16-bit grey) sRGB image; decoded to a linear multiplier
+    specular_roughness = 0.3  # optional GGX alpha in (0, 1]; absent = no specular highlight
+
+    [[light]]                 # at least one; light[i] in messages counts from 0 in file order
+    type = "point"            # point (position) | directional (direction) | spot (position, direction, cone_deg)
+    position = [x, y, z]      # mm
+    direction = [x, y, z]     # the direction the light travels (spot: the cone axis); normalised; not zero
+    intensity = 1.0e4         # >= 0, one number or 3 values: W/sr (point, spot) or W/mm^2 (directional,
+                              # irradiance on a surface facing the light)
+    cone_deg = 30.0           # spot: half-angle where the intensity reaches zero, in (0, 180]
+    falloff_deg = 5.0         # spot: smoothstep width inside cone_deg, in [0, cone_deg] (default 0)
+
+    [camera]
+    position = [...]          # mm (required)
+    look_at = [...]           # mm (required; not equal to position)
+    up = [0, 0, 1]            # not parallel to the view direction
+    fov_deg = 40              # vertical field of view, in (0, 180)
+    resolution = [512, 512]   # [width, height] in pixels, positive integers
+    spp = 1                   # samples per pixel, >= 1
+
+    [[occluder]]              # optional opaque objects (e.g. a floor): cast shadows, rendered grey Lambertian
+    builtin = "slab"          # the same mesh keys as [mesh]
+    albedo = 0.5              # in [0, 1], one number or 3 values (default 0.5)
+
+    [render]                  # keys of RenderSettings (defaults there)
+    method = "hierarchical"   # hierarchical | direct
+    eps = 0.05                # solid-angle threshold (steradians), > 0
+    density = 1.0             # multiplier on the sample density A / (pi l_u^2), > 0
+    max_samples = 200000      # >= 1
+    tolerance = 1e-3          # relative tolerance for leaving terms out, in [0, 1)
+    single_scattering = "auto"   # auto | on | off (true / false mean on / off)
+    indirect = "auto"
+    shadows = "auto"
+    seed = 0                  # >= 0
+
+    [output]
+    exposure = 1.0            # > 0, linear scale before sRGB encoding
+    background = [0, 0, 0]    # linear radiance of pixels that miss everything, >= 0
+
+    environment = "sky.hdr"   # optional top-level key: an HDR environment map (checked to exist; not used yet)
+
+The dataclasses are frozen with ``eq=False`` (they hold arrays and meshes, so comparison is by identity); their
+arrays are made read-only.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+import os
+import tomllib
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+import trimesh
+
+from jaxsss._validate import _bound_text
+from jaxsss.data.materials import material as _measured_material
+from jaxsss.medium import Medium
+from jaxsss.render.meshes import (
+    BUILTIN_MESHES,
+    MeshParamError,
+    builtin_mesh,
+    load_mesh_file,
+    transform_matrix,
+)
+from jaxsss.reparam import from_rd_ld
+
+__all__ = [
+    "Camera",
+    "Light",
+    "Material",
+    "Occluder",
+    "Output",
+    "RenderSettings",
+    "Scene",
+    "SceneError",
+    "load_scene",
+    "parse_scene",
+    "scene_with",
+]
+
+DEFAULT_ETA = 1.3
+LIGHT_KINDS = ("point", "directional", "spot")
+RENDER_METHODS = ("hierarchical", "direct")
+SWITCH_VALUES = ("auto", "on", "off")
+
+
+class SceneError(ValueError):
+    """A bad scene file or dict: ``str(err)`` is ``"{path}: [{key}] {message}"``.
+
+    Attributes:
+        path: the scene file (or ``"<scene>"`` for a dict).
+        key: the dotted key, e.g. ``"material.sigma_a"`` or ``"light[1].direction"``; ``None`` for file-level
+            errors (unreadable file, TOML syntax).
+        message: the message without the path and key.
+    """
+
+    def __init__(self, path: str, key: str | None, message: str):
+        self.path, self.key, self.message = str(path), key, message
+        super().__init__(f"{self.path}: {message}" if key is None else f"{self.path}: [{key}] {message}")
+
+
+def _frozen(a) -> np.ndarray:
+    arr = np.array(a, dtype=np.float64)
+    arr.flags.writeable = False
+    return arr
+
+
+@dataclass(frozen=True, eq=False)
+class Light:
+    """One light. ``kind`` is ``"point"``, ``"directional"`` or ``"spot"``.
+
+    Attributes:
+        intensity: ``(3,)`` RGB; radiant intensity W/sr (point, spot) or irradiance W/mm^2 on a surface facing the
+            light (directional).
+        position: ``(3,)`` mm (point, spot), else ``None``.
+        direction: ``(3,)`` unit vector the light travels along (directional; spot: the cone axis), else ``None``.
+        cone_deg: spot: the half-angle where the intensity reaches zero.
+        falloff_deg: spot: full intensity inside ``cone_deg - falloff_deg``, smoothstep to zero at ``cone_deg``.
+    """
+
+    kind: str
+    intensity: np.ndarray
+    position: np.ndarray | None = None
+    direction: np.ndarray | None = None
+    cone_deg: float = 180.0
+    falloff_deg: float = 0.0
+
+
+@dataclass(frozen=True, eq=False)
+class Camera:
+    """A pinhole camera: ``fov_deg`` is vertical; ``resolution`` is ``(width, height)``; ``up`` is a unit vector."""
+
+    position: np.ndarray
+    look_at: np.ndarray
+    up: np.ndarray = field(default_factory=lambda: _frozen([0.0, 0.0, 1.0]))
+    fov_deg: float = 40.0
+    resolution: tuple[int, int] = (512, 512)
+    spp: int = 1
+
+
+@dataclass(frozen=True, eq=False)
+class Material:
+    """The translucent material.
+
+    Attributes:
+        medium: :class:`jaxsss.Medium` with ``(3,)`` RGB ``sigma_a``, ``sigma_s_prime`` (1/mm), scalar ``eta``,
+            ``g`` or ``None``.
+        name: the measured material's name when given by name, else ``None``.
+        texture: ``(H, W, 3)`` linear multiplier (sRGB-decoded image) on the irradiance samples, or ``None``.
+        texture_path: the resolved texture file, or ``None``.
+        specular_roughness: GGX alpha in ``(0, 1]``, or ``None`` for no specular highlight.
+    """
+
+    medium: Medium
+    name: str | None = None
+    texture: np.ndarray | None = None
+    texture_path: str | None = None
+    specular_roughness: float | None = None
+
+
+@dataclass(frozen=True, eq=False)
+class Occluder:
+    """An opaque object that casts shadows and renders as grey Lambertian with ``albedo`` ``(3,)``."""
+
+    mesh: trimesh.Trimesh
+    albedo: np.ndarray
+    description: str
+
+
+@dataclass(frozen=True, eq=False)
+class RenderSettings:
+    """Renderer knobs (see the module schema for ranges)."""
+
+    method: str = "hierarchical"
+    eps: float = 0.05
+    density: float = 1.0
+    max_samples: int = 200_000
+    tolerance: float = 1e-3
+    single_scattering: str = "auto"
+    indirect: str = "auto"
+    shadows: str = "auto"
+    seed: int = 0
+
+
+@dataclass(frozen=True, eq=False)
+class Output:
+    """Image output: linear ``exposure`` before sRGB encoding; ``background`` ``(3,)`` linear radiance."""
+
+    exposure: float = 1.0
+    background: np.ndarray = field(default_factory=lambda: _frozen(np.zeros(3)))
+
+
+@dataclass(frozen=True, eq=False)
+class Scene:
+    """A validated scene; ``mesh`` is already placed in world coordinates (mm)."""
+
+    path: str | None
+    mesh: trimesh.Trimesh
+    mesh_description: str
+    material: Material
+    lights: tuple[Light, ...]
+    camera: Camera
+    occluders: tuple[Occluder, ...] = ()
+    render: RenderSettings = field(default_factory=RenderSettings)
+    output: Output = field(default_factory=Output)
+    environment: str | None = None
+
+
+# --- value checks -----------------------------------------------------------------------------------------------
+class _Ctx:
+    def __init__(self, path: str, base_dir):
+        self.path = path
+        self.base_dir = Path(base_dir) if base_dir is not None else Path.cwd()
+
+    def error(self, key: str | None, message: str) -> SceneError:
+        return SceneError(self.path, key, message)
+
+    def file(self, value, key: str) -> Path:
+        name = self.string(value, key)
+        p = Path(name).expanduser()
+        p = p if p.is_absolute() else self.base_dir / p
+        if not p.is_file():
+            raise self.error(key, f"file {name!r} does not exist (looked for {p})")
+        return p
+
+    def string(self, value, key: str) -> str:
+        if not isinstance(value, str):
+            raise self.error(key, f"{value!r} is not a string")
+        return value
+
+    def boolean(self, value, key: str) -> bool:
+        if not isinstance(value, bool):
+            raise self.error(key, f"{value!r} is not true or false")
+        return value
+
+    def number(self, value, key: str, lo=None, hi=None, *, lo_open=False, hi_open=False, where: str = "") -> float:
+        if isinstance(value, bool) or not isinstance(value, (int, float)):
+            raise self.error(key, f"{value!r}{where} is not a number")
+        v = float(value)
+        bad = math.isnan(v) or math.isinf(v)
+        if lo is not None:
+            bad = bad or (v <= lo if lo_open else v < lo)
+        if hi is not None:
+            bad = bad or (v >= hi if hi_open else v > hi)
+        if bad:
+            raise self.error(key, f"{v:g}{where} is outside the allowed range {_bound_text(lo, hi, lo_open, hi_open)}")
+        return v
+
+    def integer(self, value, key: str, lo: int, hi: int | None = None) -> int:
+        if isinstance(value, bool) or not isinstance(value, int):
+            raise self.error(key, f"{value!r} is not an integer")
+        if value < lo or (hi is not None and value > hi):
+            raise self.error(key, f"{value} is outside the allowed range [{lo}, {'inf)' if hi is None else f'{hi}]'}")
+        return value
+
+    def vector(self, value, key: str, *, scalar_ok: bool = False, **bounds) -> np.ndarray:
+        """Three numbers (or one, broadcast, when ``scalar_ok``) -> read-only ``(3,)`` float64."""
+        if scalar_ok and not isinstance(value, (list, tuple)):
+            return _frozen([self.number(value, key, **bounds)] * 3)
+        if not isinstance(value, (list, tuple)) or len(value) != 3:
+            shape = "3 values or one number" if scalar_ok else "3 values [x, y, z]"
+            raise self.error(key, f"{value!r} is not {shape}")
+        return _frozen([self.number(v, key, where=f" (element {i})", **bounds) for i, v in enumerate(value)])
+
+    def choice(self, value, key: str, choices) -> str:
+        if not isinstance(value, str) or value not in choices:
+            raise self.error(key, f"{value!r} is not one of: {', '.join(choices)}")
+        return value
+
+    def table(self, data: dict, name: str, key: str) -> dict:
+        value = data[name]
+        if not isinstance(value, dict):
+            raise self.error(key, f"must be a table [{key}], not {type(value).__name__}")
+        return value
+
+    def only_keys(self, table: dict, key: str, allowed, what: str | None = None):
+        for k in table:
+            if k not in allowed:
+                where = f"{key}.{k}" if key else k
+                raise self.error(where, f"unknown key; allowed{what or ''}: {', '.join(sorted(allowed))}")
+
+
+# --- sections ---------------------------------------------------------------------------------------------------
+_BUILTIN_PARAMS = sorted({p for _, params in BUILTIN_MESHES.values() for p in params})
+_MESH_KEYS = {"builtin", "file", "scale", "rotate_deg", "translate", "require_watertight", *_BUILTIN_PARAMS}
+
+
+def _fmt(v) -> str:
+    if isinstance(v, list):
+        return "[" + ", ".join(_fmt(x) for x in v) + "]"
+    return f"{v:g}" if isinstance(v, float) else str(v)
+
+
+def _builtin_param(ctx: _Ctx, value, key: str, default):
+    """Type-check a builtin parameter by its default's type; the range is checked by ``builtin_mesh``."""
+    if isinstance(default, list):
+        return list(ctx.vector(value, key, lo=0.0, lo_open=True))
+    if isinstance(default, int):
+        return ctx.integer(value, key, 0)
+    return ctx.number(value, key)
+
+
+def _parse_mesh(ctx: _Ctx, table: dict, key: str, extra_keys=()) -> tuple[trimesh.Trimesh, str]:
+    ctx.only_keys(table, key, _MESH_KEYS | set(extra_keys))
+    has_builtin, has_file = "builtin" in table, "file" in table
+    if has_builtin == has_file:
+        raise ctx.error(key, "give exactly one of builtin (" + ", ".join(BUILTIN_MESHES) + ") or file")
+    params = {k: v for k, v in table.items() if k in _BUILTIN_PARAMS}
+    if has_builtin:
+        name = ctx.choice(table["builtin"], f"{key}.builtin", tuple(BUILTIN_MESHES))
+        defaults = BUILTIN_MESHES[name][1]
+        for k in params:
+            if k not in defaults:
+                raise ctx.error(f"{key}.{k}", f"not a parameter of builtin {name!r}; valid: {', '.join(defaults)}")
+        values = {k: _builtin_param(ctx, v, f"{key}.{k}", defaults[k]) for k, v in params.items()}
+        try:
+            mesh = builtin_mesh(name, **values)
+        except MeshParamError as err:
+            raise ctx.error(f"{key}.{err.param}" if err.param else f"{key}.builtin", str(err)) from None
+        description = f"builtin {name}" + (
+            f" ({', '.join(f'{k}={_fmt(v)}' for k, v in params.items())})" if params else ""
+        )
+    else:
+        if params:
+            first = next(iter(params))
+            raise ctx.error(f"{key}.{first}", "builtin mesh parameters need builtin = ...; a mesh file takes none")
+        file_key = f"{key}.file"
+        path = ctx.file(table["file"], file_key)
+        try:
+            mesh = load_mesh_file(path)
+        except (ValueError, OSError) as err:
+            raise ctx.error(file_key, str(err)) from None
+        description = f"file {table['file']}"
+
+    scale = table.get("scale", 1.0)
+    if isinstance(scale, (list, tuple)):
+        scale_v = ctx.vector(scale, f"{key}.scale", lo=0.0, lo_open=True)
+    else:
+        scale_v = ctx.number(scale, f"{key}.scale", 0.0, lo_open=True)
+    rotate = ctx.vector(table.get("rotate_deg", [0.0, 0.0, 0.0]), f"{key}.rotate_deg")
+    translate = ctx.vector(table.get("translate", [0.0, 0.0, 0.0]), f"{key}.translate")
+    placed = [k for k in ("scale", "rotate_deg", "translate") if k in table]
+    if placed:
+        mesh.apply_transform(transform_matrix(scale_v, rotate, translate))
+        description += ", " + ", ".join(f"{k}={_fmt(table[k])}" for k in placed)
+
+    if ctx.boolean(table.get("require_watertight", False), f"{key}.require_watertight") and not mesh.is_watertight:
+        raise ctx.error(
+            f"{key}.require_watertight",
+            f"the mesh ({description}) is not watertight; repair it or set require_watertight = false",
+        )
+    return mesh, description
+
+
+_MATERIAL_KEYS = (
+    "name", "sigma_a", "sigma_s_prime", "rd", "ld", "eta", "g", "texture", "specular_roughness",
+)  # fmt: skip
+_MATERIAL_GROUPS = {"name": ("name",), "sigma_a + sigma_s_prime": ("sigma_a", "sigma_s_prime"), "rd + ld": ("rd", "ld")}
+
+
+def _load_texture(ctx: _Ctx, path: Path, key: str) -> np.ndarray:
+    """An image file -> ``(H, W, 3)`` linear float64 (sRGB decoded with colour.cctf_decoding)."""
+    import colour
+    from PIL import Image
+
+    try:
+        with Image.open(path) as image:
+            image.load()
+            if image.mode in ("I;16", "I;16B", "I;16L", "I"):
+                grey = np.asarray(image, dtype=np.float64) / 65535.0
+                encoded = np.repeat(grey[..., None], 3, axis=-1)
+            else:
+                encoded = np.asarray(image.convert("RGB"), dtype=np.float64) / 255.0
+    except Exception as err:  # PIL raises several types for unreadable images
+        raise ctx.error(key, f"could not read image {str(path)!r}: {err}") from err
+    if encoded.ndim != 3 or encoded.shape[0] == 0 or encoded.shape[1] == 0:
+        raise ctx.error(key, f"image {str(path)!r} is empty")
+    return _frozen(colour.cctf_decoding(np.clip(encoded, 0.0, 1.0), function="sRGB"))
+
+
+def _parse_material(ctx: _Ctx, table: dict) -> Material:
+    key = "material"
+    ctx.only_keys(table, key, _MATERIAL_KEYS)
+    given = [g for g, keys in _MATERIAL_GROUPS.items() if any(k in table for k in keys)]
+    if len(given) != 1:
+        found = "none" if not given else ", ".join(given)
+        raise ctx.error(key, f"give exactly one of: {' | '.join(_MATERIAL_GROUPS)}; found: {found}")
+    for k in _MATERIAL_GROUPS[given[0]]:
+        if k not in table:
+            raise ctx.error(f"{key}.{k}", f"missing: {given[0]} go together")
+
+    eta = None if "eta" not in table else ctx.number(table["eta"], f"{key}.eta", 0.0, lo_open=True)
+    g = None if "g" not in table else ctx.number(table["g"], f"{key}.g", -1.0, 1.0, lo_open=True, hi_open=True)
+    name = None
+    if given[0] == "name":
+        try:
+            record = _measured_material(ctx.string(table["name"], f"{key}.name"))
+        except ValueError as err:
+            if isinstance(err, SceneError):
+                raise
+            raise ctx.error(f"{key}.name", str(err)) from None
+        name = record.name
+        eta = eta if eta is not None else (record.eta if record.eta is not None else DEFAULT_ETA)
+        sigma_a, sigma_s_prime = record.sigma_a, record.sigma_s_prime
+    elif given[0] == "rd + ld":
+        eta = DEFAULT_ETA if eta is None else eta
+        rd = ctx.vector(table["rd"], f"{key}.rd", scalar_ok=True, lo=0.0, hi=1.0, lo_open=True, hi_open=True)
+        ld = ctx.vector(table["ld"], f"{key}.ld", scalar_ok=True, lo=0.0, lo_open=True)
+        try:
+            rep = from_rd_ld(rd, ld, eta, g)
+        except ValueError as err:
+            raise ctx.error(key, str(err)) from None
+        converged = np.asarray(rep.converged)
+        if not np.all(converged):
+            channels = ", ".join("RGB"[i] for i in np.flatnonzero(~converged))
+            raise ctx.error(f"{key}.rd", f"the Rd inversion did not converge for channel(s) {channels}")
+        sigma_a, sigma_s_prime = np.asarray(rep.medium.sigma_a), np.asarray(rep.medium.sigma_s_prime)
+    else:
+        eta = DEFAULT_ETA if eta is None else eta
+        sigma_a = ctx.vector(table["sigma_a"], f"{key}.sigma_a", scalar_ok=True, lo=0.0)
+        sigma_s_prime = ctx.vector(table["sigma_s_prime"], f"{key}.sigma_s_prime", scalar_ok=True, lo=0.0)
+    try:
+        medium = Medium(np.asarray(sigma_a, dtype=np.float64), np.asarray(sigma_s_prime, dtype=np.float64), eta, g)
+    except ValueError as err:
+        raise ctx.error(key, str(err)) from None
+
+    texture = texture_path = None
+    if "texture" in table:
+        path = ctx.file(table["texture"], f"{key}.texture")
+        texture, texture_path = _load_texture(ctx, path, f"{key}.texture"), str(path)
+    roughness = None
+    if "specular_roughness" in table:
+        roughness = ctx.number(table["specular_roughness"], f"{key}.specular_roughness", 0.0, 1.0, lo_open=True)
+    return Material(medium, name, texture, texture_path, roughness)
+
+
+_LIGHT_KEYS = {
+    "point": ("type", "intensity", "position"),
+    "directional": ("type", "intensity", "direction"),
+    "spot": ("type", "intensity", "position", "direction", "cone_deg", "falloff_deg"),
+}
+_ALL_LIGHT_KEYS = {k for keys in _LIGHT_KEYS.values() for k in keys}
+
+
+def _parse_light(ctx: _Ctx, table, key: str) -> Light:
+    if not isinstance(table, dict):
+        raise ctx.error(key, "must be a table ([[light]])")
+    ctx.only_keys(table, key, _ALL_LIGHT_KEYS)
+    if "type" not in table:
+        raise ctx.error(f"{key}.type", f"missing; one of: {', '.join(LIGHT_KINDS)}")
+    kind = ctx.choice(table["type"], f"{key}.type", LIGHT_KINDS)
+    allowed = _LIGHT_KEYS[kind]
+    for k in table:
+        if k not in allowed:
+            raise ctx.error(f"{key}.{k}", f"not used by a {kind} light; allowed for {kind}: {', '.join(allowed)}")
+    required = [k for k in allowed if k not in ("falloff_deg",)]
+    for k in required:
+        if k not in table:
+            raise ctx.error(f"{key}.{k}", f"missing; a {kind} light needs {', '.join(required[1:])}")
+    intensity = ctx.vector(table["intensity"], f"{key}.intensity", scalar_ok=True, lo=0.0)
+    position = ctx.vector(table["position"], f"{key}.position") if "position" in table else None
+    direction = None
+    if "direction" in table:
+        d = ctx.vector(table["direction"], f"{key}.direction")
+        norm = float(np.linalg.norm(d))
+        if norm == 0.0:
+            raise ctx.error(f"{key}.direction", f"{_fmt(list(d))} is the zero vector and has no direction")
+        direction = _frozen(d / norm)
+    cone_deg, falloff_deg = 180.0, 0.0
+    if kind == "spot":
+        cone_deg = ctx.number(table["cone_deg"], f"{key}.cone_deg", 0.0, 180.0, lo_open=True)
+        falloff_deg = ctx.number(table.get("falloff_deg", 0.0), f"{key}.falloff_deg", 0.0, cone_deg)
+    return Light(kind, intensity, position, direction, cone_deg, falloff_deg)
+
+
+_CAMERA_KEYS = ("position", "look_at", "up", "fov_deg", "resolution", "spp")
+
+
+def _parse_camera(ctx: _Ctx, table: dict) -> Camera:
+    key = "camera"
+    ctx.only_keys(table, key, _CAMERA_KEYS)
+    for k in ("position", "look_at"):
+        if k not in table:
+            raise ctx.error(f"{key}.{k}", "missing")
+    position = ctx.vector(table["position"], f"{key}.position")
+    look_at = ctx.vector(table["look_at"], f"{key}.look_at")
+    up = ctx.vector(table.get("up", [0.0, 0.0, 1.0]), f"{key}.up")
+    view = look_at - position
+    if np.linalg.norm(view) == 0.0:
+        raise ctx.error(f"{key}.look_at", f"{_fmt(list(look_at))} equals camera.position; the view has no direction")
+    if np.linalg.norm(up) == 0.0:
+        raise ctx.error(f"{key}.up", "the zero vector has no direction")
+    sin_angle = np.linalg.norm(np.cross(view, up)) / (np.linalg.norm(view) * np.linalg.norm(up))
+    if sin_angle < 1e-6:
+        raise ctx.error(f"{key}.up", f"{_fmt(list(up))} is parallel to the view direction look_at - position")
+    fov = ctx.number(table.get("fov_deg", 40.0), f"{key}.fov_deg", 0.0, 180.0, lo_open=True, hi_open=True)
+    res = table.get("resolution", [512, 512])
+    if not isinstance(res, (list, tuple)) or len(res) != 2:
+        raise ctx.error(f"{key}.resolution", f"{res!r} is not [width, height]")
+    resolution = tuple(ctx.integer(v, f"{key}.resolution", 1) for v in res)
+    spp = ctx.integer(table.get("spp", 1), f"{key}.spp", 1)
+    return Camera(position, look_at, _frozen(up / np.linalg.norm(up)), fov, resolution, spp)
+
+
+def _parse_occluder(ctx: _Ctx, table, key: str) -> Occluder:
+    if not isinstance(table, dict):
+        raise ctx.error(key, "must be a table ([[occluder]])")
+    mesh, description = _parse_mesh(ctx, table, key, extra_keys=("albedo",))
+    albedo = ctx.vector(table.get("albedo", 0.5), f"{key}.albedo", scalar_ok=True, lo=0.0, hi=1.0)
+    return Occluder(mesh, albedo, description)
+
+
+def _parse_render(ctx: _Ctx, table: dict) -> RenderSettings:
+    key = "render"
+    names = [f.name for f in dataclasses.fields(RenderSettings)]
+    ctx.only_keys(table, key, names)
+    values = {}
+    for k, v in table.items():
+        kk = f"{key}.{k}"
+        if k == "method":
+            values[k] = ctx.choice(v, kk, RENDER_METHODS)
+        elif k in ("eps", "density"):
+            values[k] = ctx.number(v, kk, 0.0, lo_open=True)
+        elif k == "tolerance":
+            values[k] = ctx.number(v, kk, 0.0, 1.0, hi_open=True)
+        elif k == "max_samples":
+            values[k] = ctx.integer(v, kk, 1)
+        elif k == "seed":
+            values[k] = ctx.integer(v, kk, 0)
+        else:  # the auto | on | off switches
+            values[k] = ("on" if v else "off") if isinstance(v, bool) else ctx.choice(v, kk, SWITCH_VALUES)
+    return RenderSettings(**values)
+
+
+def _parse_output(ctx: _Ctx, table: dict) -> Output:
+    key = "output"
+    ctx.only_keys(table, key, ("exposure", "background"))
+    exposure = ctx.number(table.get("exposure", 1.0), f"{key}.exposure", 0.0, lo_open=True)
+    background = ctx.vector(table.get("background", 0.0), f"{key}.background", scalar_ok=True, lo=0.0)
+    return Output(exposure, background)
+
+
+def _array_of_tables(ctx: _Ctx, data: dict, name: str) -> list:
+    value = data.get(name, [])
+    if isinstance(value, dict):  # a single [name] table
+        return [value]
+    if not isinstance(value, list):
+        raise ctx.error(name, f"must be an array of tables [[{name}]]")
+    return value
+
+
+_TOP_KEYS = ("mesh", "material", "light", "camera", "occluder", "render", "output", "environment")
+
+
+def parse_scene(data: dict, *, path: str = "<scene>", base_dir=None) -> Scene:
+    """Validate a scene dict (the schema in the module docstring) and build the :class:`Scene`.
+
+    Args:
+        data: the parsed TOML (``tomllib.load``).
+        path: the name used in error messages (and stored as ``Scene.path`` unless it is ``"<scene>"``).
+        base_dir: directory that relative file paths resolve against (default: the working directory).
+
+    Raises:
+        SceneError: any invalid or missing entry, naming ``path`` and the dotted key.
+    """
+    ctx = _Ctx(str(path), base_dir)
+    if not isinstance(data, dict):
+        raise ctx.error(None, "a scene must be a TOML table")
+    ctx.only_keys(data, "", _TOP_KEYS)
+    for section in ("mesh", "material", "camera"):
+        if section not in data:
+            raise ctx.error(section, f"missing section [{section}]")
+    mesh, description = _parse_mesh(ctx, ctx.table(data, "mesh", "mesh"), "mesh")
+    material = _parse_material(ctx, ctx.table(data, "material", "material"))
+    lights = _array_of_tables(ctx, data, "light")
+    if not lights:
+        raise ctx.error("light", "missing: give at least one [[light]]")
+    lights = tuple(_parse_light(ctx, t, f"light[{i}]") for i, t in enumerate(lights))
+    camera = _parse_camera(ctx, ctx.table(data, "camera", "camera"))
+    occluders = tuple(
+        _parse_occluder(ctx, t, f"occluder[{i}]") for i, t in enumerate(_array_of_tables(ctx, data, "occluder"))
+    )
+    render = _parse_render(ctx, ctx.table(data, "render", "render")) if "render" in data else RenderSettings()
+    output = _parse_output(ctx, ctx.table(data, "output", "output")) if "output" in data else Output()
+    environment = str(ctx.file(data["environment"], "environment")) if "environment" in data else None
+    return Scene(
+        path=None if path == "<scene>" else str(path),
+        mesh=mesh,
+        mesh_description=description,
+        material=material,
+        lights=lights,
+        camera=camera,
+        occluders=occluders,
+        render=render,
+        output=output,
+        environment=environment,
+    )
+
+
+def load_scene(path) -> Scene:
+    """Read and validate a TOML scene file; relative paths in it resolve against its directory.
+
+    Raises:
+        SceneError: the file is missing or unreadable, has a TOML syntax error (with line and column), or any
+            entry is invalid.
+    """
+    name = os.fspath(path)
+    try:
+        with open(name, "rb") as f:
+            data = tomllib.load(f)
+    except FileNotFoundError:
+        raise SceneError(name, None, "scene file does not exist") from None
+    except tomllib.TOMLDecodeError as err:
+        raise SceneError(name, None, f"TOML syntax error: {err}") from None
+    except (OSError, UnicodeDecodeError) as err:
+        raise SceneError(name, None, f"could not read the scene file: {err}") from None
+    return parse_scene(data, path=name, base_dir=Path(name).resolve().parent)
+
+
+def scene_with(scene: Scene, **changes) -> Scene:
+    """A copy of ``scene`` with top-level fields replaced (``dataclasses.replace``), e.g. ``render=RenderSettings(...)``.
+
+    The replaced values are not re-validated.
+    """
+    valid = [f.name for f in dataclasses.fields(Scene)]
+    unknown = sorted(set(changes) - set(valid))
+    if unknown:
+        raise ValueError(f"scene_with: unknown field(s) {', '.join(unknown)}; valid: {', '.join(valid)}")
+    return dataclasses.replace(scene, **changes)
