@@ -26,8 +26,9 @@ from fitting.solvers import resolve_solver
 
 __all__ = ["LD_CANDIDATES_MM", "RD_CANDIDATES", "ImageFit", "fit_image"]
 
-RD_CANDIDATES = (0.1, 0.3, 0.5, 0.7, 0.85, 0.95)
-LD_CANDIDATES_MM = (0.1, 0.3, 1.0, 3.0, 10.0, 30.0)
+RD_CANDIDATES = (0.2, 0.5, 0.8, 0.95)
+LD_CANDIDATES_MM = (0.3, 1.0, 3.0, 10.0)
+"""The start grid: 16 (Rd, l_d) pairs per channel, each a full image evaluation on the fit's pixels."""
 
 
 class ImageFit(eqx.Module):

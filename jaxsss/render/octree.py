@@ -288,8 +288,11 @@ def build_octree(positions, areas, weights, *, max_leaf: int = 8, max_depth: int
         count = cur_stop - cur_start
         level = np.minimum(_common_level(codes[cur_start], codes[cur_stop - 1]), max_depth)
         ids = next_id + np.arange(cur_start.size, dtype=np.int64)
-        starts.append(cur_start), stops.append(cur_stop), parents.append(cur_parent)
-        depths.append(np.full(cur_start.size, depth, dtype=np.int64)), levels.append(level)
+        starts.append(cur_start)
+        stops.append(cur_stop)
+        parents.append(cur_parent)
+        depths.append(np.full(cur_start.size, depth, dtype=np.int64))
+        levels.append(level)
         next_id += cur_start.size
         depth += 1
 
@@ -341,7 +344,8 @@ def build_octree(positions, areas, weights, *, max_leaf: int = 8, max_depth: int
     child_ids = node_ids[has_parent]
     child_parent = node_parent[has_parent]
     first_child = np.full(n_ent, -1, dtype=np.int64)
-    first_child[child_parent[::-1]] = child_ids[::-1]  # smallest child id per parent
+    parents_with_children, first_pos = np.unique(child_parent, return_index=True)
+    first_child[parents_with_children] = child_ids[first_pos]  # smallest child id per parent
     children[child_parent, child_ids - first_child[child_parent]] = child_ids
     is_leaf_node = np.zeros(n_ent, dtype=bool)
     is_leaf_node[n:] = first_child[n:] < 0

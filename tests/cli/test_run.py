@@ -23,7 +23,7 @@ def job(tmp_path_factory):
     out_dir = tmp_path_factory.mktemp("run") / "nested" / "out"
     stdout, stderr = io.StringIO(), io.StringIO()
     with contextlib.redirect_stdout(stdout), contextlib.redirect_stderr(stderr):
-        code = main(["run", "--out-dir", str(out_dir), "--photons", str(PHOTONS)])
+        code = main(["run", "--out-dir", str(out_dir), "--photons", str(PHOTONS), "--resolution", "48", "48"])
     return code, stdout.getvalue(), stderr.getvalue(), out_dir
 
 
@@ -65,9 +65,25 @@ def test_job_table_agrees_with_reparam(job, capsys):
 
 def test_job_is_a_list_of_steps(job):
     _, out, _, _ = job
-    assert [s.name for s in STEPS] == ["reparam", "dipole_profiles", "measure", "fit_measurement"]
+    assert [s.name for s in STEPS] == ["render", "fit_image", "reparam", "dipole_profiles", "measure",
+                                       "fit_measurement"]
     for i, step in enumerate(STEPS, 1):
         assert f"step {i}/{len(STEPS)}: {step.name}" in out
+
+
+def test_job_renders_the_teapot_and_recovers_the_marble(job):
+    _, out, _, out_dir = job
+    assert (out_dir / "marble_teapot.png").read_bytes()[:8] == PNG_SIGNATURE
+    image = np.load(out_dir / "marble_teapot.npy")
+    assert image.shape == (48, 48, 3) and np.isfinite(image).all() and image.max() > 0
+    report = json.loads((out_dir / "marble_teapot.json").read_text())
+    assert report["resolution"] == [48, 48] and report["plan"]["items"]
+    # The recovery table: six rows (sigma_a and sigma_s' in R, G, B), each within 1% at this tiny size.
+    lines = out.splitlines()
+    start = next(i for i, line in enumerate(lines) if line.startswith("param"))
+    errors = [float(line.split()[-1].rstrip("%")) for line in lines[start + 1:start + 7]]
+    assert len(errors) == 6 and max(abs(e) for e in errors) < 1.0, errors
+    assert "converged" in out
 
 
 def test_out_dir_that_is_a_file_is_a_user_error(capsys, tmp_path):
@@ -84,7 +100,7 @@ def test_job_simulates_and_fits_a_named_material(job):
     the mc estimates must still land within 5 standard errors + 2% (the model's systematic error, cf.
     tests/fitting/test_mc_model.py); the dipole's error is printed, whatever it is."""
     from fitting import read_profile
-    from jaxsss.cli.run import MEASURED, MEASURE_G, MEASURE_N
+    from jaxsss.cli.run import MEASURE_G, MEASURE_N, MEASURED
 
     _, out, _, out_dir = job
     path = out_dir / "measurement_skin1_G.csv"
@@ -93,7 +109,7 @@ def test_job_simulates_and_fits_a_named_material(job):
     assert f"{PHOTONS} photons" in out and f"g = {MEASURE_G:g}" in out and f"eta = {MEASURE_N:g}" in out
     rows = {}
     model = None
-    for line in out.splitlines():
+    for line in out[out.index(": fit_measurement:"):].splitlines():
         parts = line.split()
         if parts and parts[0] in ("mc", "dipole"):
             model, parts = parts[0], parts[1:]
