@@ -1,0 +1,111 @@
+"""``jaxsss render``: outputs (PNG, NPY, EXR, JSON report), --explain, --help units, and one-line user errors."""
+
+import json
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from tests.cli.runner import run_cli
+
+PNG_SIGNATURE = b"\x89PNG\r\n\x1a\n"
+EXAMPLES = Path(__file__).resolve().parents[2] / "examples"
+
+
+@pytest.fixture(scope="module")
+def small_scene(tmp_path_factory):
+    path = tmp_path_factory.mktemp("scene") / "sphere.toml"
+    path.write_text(
+        """
+[mesh]
+builtin = "sphere"
+radius = 5.0
+subdivisions = 3
+[material]
+name = "skin1"
+[[light]]
+type = "point"
+position = [-20.0, -20.0, 20.0]
+intensity = 800.0
+[camera]
+position = [0.0, -30.0, 5.0]
+look_at = [0.0, 0.0, 0.0]
+fov_deg = 25.0
+resolution = [16, 12]
+[render]
+density = 0.3
+"""
+    )
+    return path
+
+
+def test_render_writes_png_npy_exr_and_report(capsys, tmp_path, small_scene):
+    out = tmp_path / "img" / "sphere.png"
+    report_path = tmp_path / "report.json"
+    code, stdout, err = run_cli(capsys, "render", small_scene, "-o", out, "--json", report_path, "--quiet")
+    assert code == 0, err
+    assert out.read_bytes()[:8] == PNG_SIGNATURE
+    image = np.load(out.with_suffix(".npy"))
+    assert image.shape == (12, 16, 3) and np.isfinite(image).all() and image.max() > 0
+    assert out.with_suffix(".exr").stat().st_size > 0
+    report = json.loads(report_path.read_text())
+    for key in ("seconds_total", "timings", "n_samples", "interactions_per_point_mean", "interactions_per_point_max",
+                "plan", "image", "outputs"):
+        assert key in report
+    assert report["resolution"] == [16, 12]
+    np.testing.assert_allclose(report["image"]["max"], image.max(axis=(0, 1)))
+
+
+def test_render_overrides_and_direct_method(capsys, tmp_path, small_scene):
+    out = tmp_path / "d.png"
+    code, stdout, err = run_cli(capsys, "render", small_scene, "-o", out, "--method", "direct", "--resolution", 8, 6,
+                                "--no-exr")
+    assert code == 0, err
+    assert np.load(out.with_suffix(".npy")).shape == (6, 8, 3)
+    assert not out.with_suffix(".exr").exists()
+    assert "shaded points" in stdout
+
+
+def test_explain_prints_the_plan(capsys, small_scene):
+    code, out, err = run_cli(capsys, "render", small_scene, "--explain")
+    assert code == 0, err
+    assert "shadow rays" in out and "convex mesh alone" in out and "single scattering" in out
+
+
+def test_every_example_has_a_plan(capsys):
+    for path in sorted(EXAMPLES.glob("*.toml")):
+        code, out, err = run_cli(capsys, "render", path, "--explain")
+        assert code == 0, (path, err)
+
+
+def test_help_states_units(capsys):
+    with pytest.raises(SystemExit):
+        run_cli(capsys, "render", "--help")
+    out = capsys.readouterr().out
+    assert "mm" in out and "1/mm" in out and "W/sr" in out and "sr" in out
+
+
+@pytest.mark.parametrize(
+    "argv, needle",
+    [
+        (["--eps", "-1"], "--eps"),
+        (["--resolution", "0", "4"], "--resolution"),
+        (["--method", "nope"], "method"),
+    ],
+)
+def test_bad_options_are_one_line_errors(capsys, small_scene, argv, needle):
+    code, out, err = run_cli(capsys, "render", small_scene, *argv)
+    assert code == 2 and out == ""
+    assert err.startswith("jaxsss: error:") and err.count("\n") == 1 and needle in err
+
+
+def test_bad_scene_file_names_file_and_key(capsys, tmp_path):
+    bad = tmp_path / "bad.toml"
+    bad.write_text('[mesh]\nbuiltin = "sphere"\n[material]\nsigma_a = -0.1\nsigma_s_prime = 1.0\n'
+                   '[[light]]\ntype = "point"\nposition = [0, 0, 10]\nintensity = 1.0\n'
+                   '[camera]\nposition = [0, -10, 0]\nlook_at = [0, 0, 0]\n')
+    code, out, err = run_cli(capsys, "render", bad, "--explain")
+    assert code == 2 and err.count("\n") == 1
+    assert "bad.toml" in err and "material.sigma_a" in err and "-0.1" in err
+    code, out, err = run_cli(capsys, "render", tmp_path / "missing.toml")
+    assert code == 2 and "missing.toml" in err
