@@ -150,3 +150,39 @@ def test_multipole_values_gradients_and_float32(slab_inputs):
     for k, tol in enumerate([5e-3, 5e-3, 1e-3, 1e-3]):
         resolved = np.abs(v64[:, k]) > 1e-30
         assert np.max(np.abs(v32[resolved, k] / v64[resolved, k] - 1)) < tol, ["R", "T", "R_total", "T_total"][k]
+
+
+# --- Renderer terms (jaxsss.render.radiance): disc integral, exit radiance, single scattering -------------------------
+def _render_terms(x):
+    """Near-field disc integral at rho0 = x[3] l_u, diffuse exit radiance at cos 0.3, and the single-scattering
+    radiance for light at 60 degrees seen at 30 degrees, for the medium (x[0], x[1], x[2])."""
+    from jaxsss.render import radiance as rad
+
+    m = Medium(x[..., 0], x[..., 1], x[..., 2])
+    disc = rad.disc_integral(x[..., 3] * m.l_u, m)
+    exit_l = rad.exit_radiance(m, jnp.ones((1, 1), x.dtype), jnp.full((1,), 0.3, x.dtype))[0, 0]
+    n = jnp.array([[0.0, 0.0, 1.0]], x.dtype)
+    eye = jnp.array([[0.5, 0.0, np.sqrt(0.75)]], x.dtype)
+    light = jnp.array([[[-np.sqrt(0.75), 0.0, 0.5]]], x.dtype)
+    single = rad.single_scattering(m, n, eye, light, jnp.ones((1, 1, 1), x.dtype))[0, 0]
+    return jnp.stack([disc, exit_l, single])
+
+
+def test_render_terms_values_gradients_and_float32(medium_inputs):
+    rho = np.array([0.0, 1e-3, 1.0, 1e3])
+    x = np.concatenate([np.c_[medium_inputs, np.full(len(medium_inputs), r)] for r in rho])
+    v = jax.vmap(_render_terms)(jnp.asarray(x))
+    assert bool(jnp.all(jnp.isfinite(v))) and bool(jnp.all(v >= 0))
+    # The disc integral never exceeds Rd (Eq. 15) and reaches it for a large disc.
+    rd = np.asarray(rd_of(jnp.asarray(x[:, :3])))
+    assert np.all(np.asarray(v[:, 0]) <= rd * (1 + 1e-12))
+    large = x[:, 3] == 1e3
+    big_disc = large & (np.asarray(Medium(x[:, 0], x[:, 1], x[:, 2]).l_d) < 1e2 * np.asarray(
+        Medium(x[:, 0], x[:, 1], x[:, 2]).l_u))
+    np.testing.assert_allclose(np.asarray(v[big_disc, 0]), rd[big_disc], rtol=1e-6)
+    grads = jax.vmap(jax.jacfwd(lambda y: _render_terms(y)))(jnp.asarray(x))
+    assert bool(jnp.all(jnp.isfinite(grads))), np.argwhere(~np.isfinite(np.asarray(grads)))[:5]
+    v32 = np.asarray(jax.vmap(_render_terms)(jnp.asarray(x, dtype=jnp.float32)), dtype=np.float64)
+    v64 = np.asarray(v)
+    resolved = v64 > 1e-30
+    assert np.max(np.abs(v32[resolved] / v64[resolved] - 1)) < 1e-4

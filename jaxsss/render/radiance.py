@@ -99,8 +99,10 @@ def disc_integral(rho0, medium: Medium):
 
     def term(z):
         d0 = jnp.sqrt(rho0 * rho0 + z * z)
-        # Hierarchical paper Eq. 8 integrated over the disc, one source at a time.
-        return 2.0 * jnp.pi * (jnp.exp(-s * z) - z * jnp.exp(-s * d0) / d0)
+        gap = rho0 * rho0 / (d0 + z)  # d0 - z without cancellation
+        # Hierarchical paper Eq. 8 integrated over the disc, one source at a time:
+        # e^{-s z} - (z/d0) e^{-s d0} = e^{-s z} [(1 - z/d0) + (z/d0)(1 - e^{-s (d0 - z)})], both parts >= 0.
+        return 2.0 * jnp.pi * jnp.exp(-s * z) * (gap / d0 - (z / d0) * jnp.expm1(-s * gap))
 
     return medium.alpha_prime / (4.0 * jnp.pi) * (term(z_r) + term(z_v))
 
@@ -239,7 +241,8 @@ def _refract_in(to_source, normal, eta):
     cos_i = jnp.clip(jnp.sum(to_source * normal, axis=-1), 0.0, 1.0)
     sin2_t = (1.0 - cos_i**2) / eta**2
     ok = sin2_t < 1.0
-    cos_t = jnp.sqrt(jnp.clip(1.0 - sin2_t, 0.0, 1.0))
+    # Double where: no infinite derivative of sqrt at 0 leaks into gradients under total internal reflection.
+    cos_t = jnp.where(ok, jnp.sqrt(jnp.where(ok, 1.0 - sin2_t, 1.0)), 0.0)
     t = -to_source / eta + (cos_i / eta - cos_t)[..., None] * normal
     return t, cos_t, ok
 
