@@ -171,7 +171,8 @@ def _render_terms(x):
 def test_render_terms_values_gradients_and_float32(medium_inputs):
     rho = np.array([0.0, 1e-3, 1.0, 1e3])
     x = np.concatenate([np.c_[medium_inputs, np.full(len(medium_inputs), r)] for r in rho])
-    v = jax.vmap(_render_terms)(jnp.asarray(x))
+    terms = jax.jit(jax.vmap(_render_terms))
+    v = terms(jnp.asarray(x))
     assert bool(jnp.all(jnp.isfinite(v))) and bool(jnp.all(v >= 0))
     # The disc integral never exceeds Rd (Eq. 15) and reaches it for a large disc.
     rd = np.asarray(rd_of(jnp.asarray(x[:, :3])))
@@ -180,9 +181,9 @@ def test_render_terms_values_gradients_and_float32(medium_inputs):
     big_disc = large & (np.asarray(Medium(x[:, 0], x[:, 1], x[:, 2]).l_d) < 1e2 * np.asarray(
         Medium(x[:, 0], x[:, 1], x[:, 2]).l_u))
     np.testing.assert_allclose(np.asarray(v[big_disc, 0]), rd[big_disc], rtol=1e-6)
-    grads = jax.vmap(jax.jacfwd(lambda y: _render_terms(y)))(jnp.asarray(x))
+    grads = jax.jit(jax.vmap(jax.jacfwd(_render_terms)))(jnp.asarray(x))
     assert bool(jnp.all(jnp.isfinite(grads))), np.argwhere(~np.isfinite(np.asarray(grads)))[:5]
-    v32 = np.asarray(jax.vmap(_render_terms)(jnp.asarray(x, dtype=jnp.float32)), dtype=np.float64)
+    v32 = np.asarray(terms(jnp.asarray(x, dtype=jnp.float32)), dtype=np.float64)
     v64 = np.asarray(v)
     resolved = v64 > 1e-30
     assert np.max(np.abs(v32[resolved] / v64[resolved] - 1)) < 1e-4
