@@ -13,7 +13,7 @@ from jaxsss.render.radiance import F_dt_external
 from tests.gradcheck import assert_grad_matches_fd
 
 
-def _scene(mesh=None, *, material=None, lights=None, camera=None, render_opts=None, occluders=None):
+def _scene_dict(mesh=None, *, material=None, lights=None, camera=None, render_opts=None, occluders=None):
     data = {
         "mesh": mesh or {"builtin": "sphere", "radius": 5.0, "subdivisions": 4},
         "material": material or {"sigma_a": [0.05, 0.1, 0.2], "sigma_s_prime": [1.0, 1.5, 2.0], "eta": 1.3},
@@ -25,7 +25,11 @@ def _scene(mesh=None, *, material=None, lights=None, camera=None, render_opts=No
     }
     if occluders:
         data["occluder"] = occluders
-    return parse_scene(data, path="<test>")
+    return data
+
+
+def _scene(*args, **kwargs):
+    return parse_scene(_scene_dict(*args, **kwargs), path="<test>")
 
 
 @pytest.fixture(scope="module")
@@ -140,3 +144,32 @@ def test_fit_image_recovers_material(sphere):
     assert fit.converged, fit.message
     np.testing.assert_allclose(fit.sigma_a, truth.sigma_a, rtol=1e-3)
     np.testing.assert_allclose(fit.sigma_s_prime, truth.sigma_s_prime, rtol=1e-3)
+
+
+def test_texture_scales_the_irradiance_samples(tmp_path):
+    import colour
+    from PIL import Image
+
+    Image.fromarray(np.full((8, 8, 3), 188, dtype=np.uint8)).save(tmp_path / "grey.png")
+    base = {"sigma_a": [0.05, 0.1, 0.2], "sigma_s_prime": [1.0, 1.5, 2.0], "eta": 1.3}
+    plain = _scene(material=base)
+    textured = parse_scene({**_scene_dict(), "material": {**base, "texture": "grey.png"}}, path="<test>",
+                           base_dir=tmp_path)
+    medium = plain.material.medium
+    a = np.asarray(prepare(plain, resolution=(8, 8))[0].exitance(medium))
+    b = np.asarray(prepare(textured, resolution=(8, 8))[0].exitance(medium))
+    np.testing.assert_allclose(b, a * float(colour.cctf_decoding(188 / 255, function="sRGB")), rtol=1e-12)
+
+
+def test_indirect_bounce_off_a_floor_adds_light():
+    floor = {"builtin": "slab", "width": 80.0, "depth": 80.0, "thickness": 1.0, "translate": [0.0, 0.0, -6.0],
+             "albedo": 0.8}
+    lights = [{"type": "directional", "direction": [0.0, 0.3, -1.0], "intensity": 1.0}]
+    on = _scene(lights=lights, occluders=[floor])
+    off = _scene(lights=lights, occluders=[floor], render_opts={"indirect": "off"})
+    assert make_plan(on).indirect and not make_plan(off).indirect
+    medium = on.material.medium
+    m_on = np.asarray(prepare(on, resolution=(12, 12))[0].sample_flux(medium))
+    m_off = np.asarray(prepare(off, resolution=(12, 12))[0].sample_flux(medium))
+    assert m_on.sum() > 1.05 * m_off.sum()  # the floor lights the sphere's underside
+    assert np.all(m_on >= m_off - 1e-15)
