@@ -268,7 +268,7 @@ def build_interactions(
     starts = range(0, n_q, chunk_size)
     bar = None
     if progress:
-        from tqdm.auto import tqdm
+        from tqdm import tqdm
 
         bar = tqdm(total=len(starts), desc="interactions", unit="chunk")
     queries, entities = [], []

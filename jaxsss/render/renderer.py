@@ -17,7 +17,7 @@ import equinox as eqx
 import jax
 import jax.numpy as jnp
 import numpy as np
-from tqdm.auto import tqdm
+from tqdm import tqdm
 
 from jaxsss.medium import Medium
 from jaxsss.render import radiance as rad
@@ -34,9 +34,11 @@ __all__ = ["BLOCK_PAIRS", "Prepared", "RenderResult", "prepare", "render"]
 BLOCK_PAIRS = 1 << 16
 """Pairs per block of the hierarchical sum (one ``lax.scan`` step)."""
 
-NEAR_RADIUS_IN_SAMPLES = 3.0
-"""The near-field radius ``rho_0`` in sample radii ``sqrt(A_p / pi)`` (about 9 samples inside; see
-:mod:`jaxsss.render.radiance`). 2 gives 4% pixel noise on a lit plane, 3 gives 2%, 4 gives 1.4% with more blur."""
+NEAR_RADIUS_IN_SAMPLES = 4.0
+"""The near-field radius ``rho_0`` in sample radii ``sqrt(A_p / pi)`` (about 16 samples inside; see
+:mod:`jaxsss.render.radiance`). On a uniformly lit plane at the paper's density (stratified samples) 2 gives 3-4%
+pixel noise, 3 gives 1.4-2.4%, 4 gives 0.8-1.4% and 6 gives 0.4-0.7%, at the price of smoothing the irradiance over
+a larger neighbourhood (about ``rho_0 / 2``)."""
 
 
 class Prepared(eqx.Module):
@@ -66,10 +68,9 @@ class Prepared(eqx.Module):
     # Interaction list in blocks (far field).
     pair_query: jax.Array | None  # (B, K) int32
     pair_entity: jax.Array | None  # (B, K) int32
-    # Near field: (query, sample) pairs closer than rho0, each query's near area, and rho0 (mm).
+    # Near field: (query, sample) pairs closer than rho0 (sorted by query), and rho0 (mm).
     near_query: jax.Array | None  # (K2,) int32
     near_sample: jax.Array | None  # (K2,) int32
-    near_area: jax.Array  # (Q,)
     rho0: jax.Array  # ()
     # Image assembly.
     query_pixel: jax.Array  # (Q,) flat pixel index
@@ -106,7 +107,8 @@ class Prepared(eqx.Module):
 
     def exitance_near(self, medium: Medium, flux):
         """The near-field disc part of ``M_o`` (hierarchical method), ``(Q, C)``."""
-        return rad.exitance_near(medium, flux, self.near_query, self.near_sample, self.near_area, self.rho0)
+        return rad.exitance_near(medium, self.query_pos, self.sample_pos, self.areas, flux, self.near_query,
+                                 self.near_sample, self.rho0, shared_channel=self.shared_channel)
 
     def radiance_from_exitance(self, medium: Medium, exitance):
         """Radiance towards the eye at the shaded points, ``(Q, C)`` W/(mm^2 sr): diffusion plus the optional
@@ -128,8 +130,9 @@ class Prepared(eqx.Module):
         return (img + self.constant).reshape(h, w, -1)
 
     def image(self, medium: Medium):
-        """The linear radiance image ``(H, W, C)`` as a JAX function of the medium (differentiable)."""
-        return self.image_from_radiance(self.radiance_from_exitance(medium, self.exitance(medium)))
+        """The linear radiance image ``(H, W, C)`` as a JAX function of the medium (differentiable; jitted, with
+        this ``Prepared``'s arrays as arguments, so a second call with the same shapes does not recompile)."""
+        return _image(self, medium)
 
 
 class RenderResult(NamedTuple):
@@ -153,9 +156,9 @@ def _blocks(values: np.ndarray, fill: int, block: int) -> np.ndarray:
     return np.concatenate([values, np.full(pad, fill, dtype=values.dtype)]).reshape(-1, block)
 
 
-def _split_near(inter, q_pos, tree, sorted_pos, sorted_area, rho0, chunk: int = 1 << 22):
+def _split_near(inter, q_pos, tree, sorted_pos, rho0, chunk: int = 1 << 22):
     """Split an interaction list into far pairs (summed point by point) and near (query, sample) pairs closer than
-    ``rho0``. Returns ``(far_mask, near_query, near_sample, near_area (Q,), nodes_inside)`` where ``nodes_inside``
+    ``rho0``. Returns ``(far_mask, near_query, near_sample, nodes_inside)`` where ``nodes_inside``
     counts accepted octree nodes whose centroid lies within ``rho0`` (0 unless eps is very large: a node there
     subtends a solid angle far above any sensible eps)."""
     n = tree.n_samples
@@ -169,8 +172,7 @@ def _split_near(inter, q_pos, tree, sorted_pos, sorted_area, rho0, chunk: int = 
         nodes_inside += int(np.count_nonzero(close & (e >= n)))
     near_q = inter.query[~far].astype(np.int32)
     near_s = inter.entity[~far].astype(np.int32)
-    near_area = np.bincount(near_q, weights=sorted_area[near_s], minlength=len(q_pos))
-    return far, near_q, near_s, near_area, nodes_inside
+    return far, near_q, near_s, nodes_inside
 
 
 def prepare(scene, *, method: str | None = None, eps: float | None = None, resolution=None,
@@ -194,7 +196,9 @@ def prepare(scene, *, method: str | None = None, eps: float | None = None, resol
     """
     t_all = time.perf_counter()
     timings: dict[str, float] = {}
+    t0 = time.perf_counter()
     plan = plan or make_plan(scene, method=method, eps=eps, cutoff=cutoff, share_channels=share_channels)
+    timings["plan"] = time.perf_counter() - t0
     bar = tqdm(total=4, desc="render: geometry", disable=not progress, leave=False)
 
     # Pass 1: irradiance samples.
@@ -255,10 +259,9 @@ def prepare(scene, *, method: str | None = None, eps: float | None = None, resol
 
     t0 = time.perf_counter()
     order = tree.order
-    sorted_pos, sorted_area = samples.positions[order], samples.areas[order]
+    sorted_pos = samples.positions[order]
     rho0 = NEAR_RADIUS_IN_SAMPLES * math.sqrt(float(np.mean(samples.areas)) / math.pi)
     near_q = near_s = None
-    near_area = np.zeros(len(q_pos))
     nodes_inside_rho0 = 0
     if plan.method == "direct" or len(q_pos) == 0:
         pq = pe = None
@@ -266,8 +269,7 @@ def prepare(scene, *, method: str | None = None, eps: float | None = None, resol
     else:
         inter = build_interactions(tree, q_pos, plan.eps, r_cut=plan.r_cut, progress=progress)
         counts = inter.counts()
-        far, near_q, near_s, near_area, nodes_inside_rho0 = _split_near(inter, q_pos, tree, sorted_pos, sorted_area,
-                                                                         rho0)
+        far, near_q, near_s, nodes_inside_rho0 = _split_near(inter, q_pos, tree, sorted_pos, rho0)
         pq = jnp.asarray(_blocks(inter.query[far].astype(np.int32), len(q_pos), block_pairs))
         pe = jnp.asarray(_blocks(inter.entity[far].astype(np.int32), 0, block_pairs))
         del inter, far
@@ -297,7 +299,6 @@ def prepare(scene, *, method: str | None = None, eps: float | None = None, resol
         pair_entity=pe,
         near_query=None if near_q is None else jnp.asarray(near_q),
         near_sample=None if near_s is None else jnp.asarray(near_s),
-        near_area=jnp.asarray(near_area),
         rho0=jnp.asarray(rho0),
         query_pixel=jnp.asarray(q_pixel),
         constant=jnp.asarray(constant),
@@ -325,6 +326,11 @@ def prepare(scene, *, method: str | None = None, eps: float | None = None, resol
         "camera_forward": camera_frame(scene.camera)[0].tolist(),
     }
     return prepared, plan, info
+
+
+@eqx.filter_jit
+def _image(prepared: Prepared, medium: Medium):
+    return prepared.image_from_radiance(prepared.radiance_from_exitance(medium, prepared.exitance(medium)))
 
 
 @eqx.filter_jit
@@ -373,16 +379,15 @@ def render(scene, *, method: str | None = None, eps: float | None = None, resolu
                                    pixel_mask=pixel_mask)
     medium = scene.material.medium
     timings = dict(info["timings"])
+    n_c = prepared.constant.shape[-1]
+    # Compile every pass-2 function first (timed apart), then run them.
+    t0 = time.perf_counter()
+    exitance0 = jnp.zeros((prepared.n_queries, n_c))
+    finish = _finish.lower(prepared, medium, exitance0).compile()
     if prepared.n_queries == 0:
-        exitance = jnp.zeros((0, prepared.constant.shape[-1]))
-        timings["pass2_compile"] = timings["pass2_sum"] = 0.0
+        compiled = None
     elif prepared.method == "direct":
-        t0 = time.perf_counter()
         compiled = _direct_exitance.lower(prepared, medium).compile()
-        timings["pass2_compile"] = time.perf_counter() - t0
-        t0 = time.perf_counter()
-        exitance = jax.block_until_ready(compiled(prepared, medium))
-        timings["pass2_sum"] = time.perf_counter() - t0
     else:
         n_blocks = prepared.pair_query.shape[0]
         per_call = max(1, math.ceil(n_blocks / calls))
@@ -390,23 +395,28 @@ def render(scene, *, method: str | None = None, eps: float | None = None, resolu
         pq = jnp.concatenate([prepared.pair_query,
                               jnp.full((pad, prepared.pair_query.shape[1]), prepared.n_queries, jnp.int32)])
         pe = jnp.concatenate([prepared.pair_entity, jnp.zeros((pad, prepared.pair_entity.shape[1]), jnp.int32)])
-        t0 = time.perf_counter()
         compiled = _exitance_blocks.lower(prepared, medium, pq[:per_call], pe[:per_call]).compile()
-        timings["pass2_compile"] = time.perf_counter() - t0
-        t0 = time.perf_counter()
-        exitance = _exitance_near(prepared, medium)
+        near = _exitance_near.lower(prepared, medium).compile()
+    timings["pass2_compile"] = time.perf_counter() - t0
+    t0 = time.perf_counter()
+    if compiled is None:
+        exitance = exitance0
+    elif prepared.method == "direct":
+        exitance = jax.block_until_ready(compiled(prepared, medium))
+    else:
+        exitance = near(prepared, medium)
         for s in tqdm(range(0, n_blocks + pad, per_call), desc="render: pass 2 (hierarchical sum)",
                       disable=not progress, leave=False):
             exitance = exitance + compiled(prepared, medium, pq[s:s + per_call], pe[s:s + per_call])
         exitance = jax.block_until_ready(exitance)
-        timings["pass2_sum"] = time.perf_counter() - t0
+    timings["pass2_sum"] = time.perf_counter() - t0
     t0 = time.perf_counter()
-    image = np.asarray(_finish(prepared, medium, exitance))
+    image = np.asarray(finish(prepared, medium, exitance))
     timings["radiance_and_image"] = time.perf_counter() - t0
     seconds_total = time.perf_counter() - t_all
     report = {
         "seconds_total": seconds_total,
-        "seconds_total_excluding_compile": seconds_total - timings.get("pass2_compile", 0.0),
+        "seconds_total_excluding_compile": seconds_total - timings["pass2_compile"],
         "timings": timings,
         "method": plan.method,
         "eps": plan.eps,

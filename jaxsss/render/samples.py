@@ -1,8 +1,16 @@
 """Pass 1 of the hierarchical method: irradiance samples on the translucent surface (NumPy, trimesh, embreex).
 
 Density (hierarchical paper, "Pass 1"): the mean free path ``l_u`` is the largest spacing, so an object of area ``A``
-gets about ``A / (pi l_u^2)`` points, times the scene's ``density`` multiplier. Points are blue-noise-like
-(trimesh's even sampling, a Poisson-disk rejection pass) and each carries the area ``A / N``.
+gets about ``A / (pi l_u^2)`` points, times the scene's ``density`` multiplier. Each carries the area ``A / N``.
+
+Placement (:data:`SAMPLERS`). The paper uses Turk's point repulsion; what matters for the sums is that the number of
+points in any patch is proportional to its area, since every point carries the same area. ``"stratified"``
+(default) walks the triangles along a Z-order (Morton) curve and places the points at jittered equal steps of the
+accumulated area, so every stretch of the curve gets its exact share; inside a triangle they follow a randomly
+shifted rank-1 (golden-ratio) lattice mapped area-preservingly onto the triangle. ``"even"`` is trimesh's
+Poisson-disk rejection of random points: blue noise at the point scale, but its patch counts fluctuate like a
+random sample's, which on a uniformly lit plane gives 8-17% pixel noise at the paper's density where
+``"stratified"`` gives 1-8% (before the near-field split of :mod:`jaxsss.render.radiance`).
 
 Each sample stores the geometry of its light (:class:`~jaxsss.render.lights.LightField`), an optional one-bounce
 indirect irradiance off opaque occluders, and an optional texture multiplier. The entry Fresnel that turns these into
@@ -18,8 +26,10 @@ import numpy as np
 import trimesh
 
 from jaxsss.render.lights import LightField, light_field
+from jaxsss.render.octree import MORTON_BITS, morton_codes
 
 __all__ = [
+    "SAMPLERS",
     "IrradianceSamples",
     "indirect_irradiance",
     "irradiance_samples",
@@ -69,15 +79,56 @@ def sample_count(area: float, l_u: float, density: float = 1.0, max_samples: int
     return want, reason
 
 
-def sample_surface(mesh: trimesh.Trimesh, n: int, seed: int = 0):
-    """``(positions, face, areas)``: about ``n`` evenly spread points on the mesh (trimesh's Poisson-disk pass).
+_GOLDEN = (math.sqrt(5.0) - 1.0) / 2.0
 
-    The even sampler can return fewer points than asked; the area per point is the total area over the number
-    returned, so the total area is exact.
-    """
-    pts, face = trimesh.sample.sample_surface_even(mesh, int(n), seed=seed)
+
+def _stratified(mesh: trimesh.Trimesh, n: int, rng: np.random.Generator):
+    """``(positions, face)``: ``n`` points, jittered equal steps of area along a Z-order curve of the triangles."""
+    tri = mesh.triangles
+    centres = tri.mean(axis=1)
+    lo = centres.min(axis=0)
+    side = max(float((centres.max(axis=0) - lo).max()), 1e-300)
+    top = (1 << MORTON_BITS) - 1
+    cells = np.clip(((centres - lo) / side * top).astype(np.int64), 0, top)
+    order = np.argsort(morton_codes(cells), kind="stable")
+    cum = np.cumsum(mesh.area_faces[order])
+    step = cum[-1] / n
+    k = np.minimum(np.searchsorted(cum, (np.arange(n) + rng.random(n)) * step, side="right"), len(order) - 1)
+    counts = np.bincount(k, minlength=len(order))
+    rank = np.arange(n) - (np.cumsum(counts) - counts)[k]  # k is sorted: rank of each point within its triangle
+    shift = rng.random((2, len(order)))
+    a = (rank + shift[0, k]) / counts[k]
+    b = (rank * _GOLDEN + shift[1, k]) % 1.0
+    # Area-preserving map of the unit square onto the triangle (Shirley): barycentrics (1 - sqrt a, sqrt a (1 - b),
+    # sqrt a b).
+    sa = np.sqrt(a)
+    t = tri[order[k]]
+    pos = (1.0 - sa)[:, None] * t[:, 0] + (sa * (1.0 - b))[:, None] * t[:, 1] + (sa * b)[:, None] * t[:, 2]
+    return pos, order[k]
+
+
+def _even(mesh: trimesh.Trimesh, n: int, rng: np.random.Generator):
+    pts, face = trimesh.sample.sample_surface_even(mesh, int(n), seed=int(rng.integers(2**31)))
     if len(pts) < 0.5 * n:  # very uneven meshes: fall back to plain area-weighted sampling
-        pts, face = trimesh.sample.sample_surface(mesh, int(n), seed=seed)
+        pts, face = trimesh.sample.sample_surface(mesh, int(n), seed=int(rng.integers(2**31)))
+    return pts, face
+
+
+SAMPLERS = {"stratified": _stratified, "even": _even}
+"""Point placements by name (module docstring)."""
+
+
+def sample_surface(mesh: trimesh.Trimesh, n: int, seed: int = 0, method: str = "stratified"):
+    """``(positions, face, areas)``: about ``n`` points on the mesh, each with the area ``A / N``.
+
+    ``method`` is a key of :data:`SAMPLERS`. ``"even"`` can return fewer points than asked; the area per point is the
+    total area over the number returned, so the total area is exact either way.
+    """
+    if method not in SAMPLERS:
+        raise ValueError(f"sample_surface(method={method!r}) is not one of {sorted(SAMPLERS)}")
+    if int(n) < 1:
+        raise ValueError(f"sample_surface(n={n}) is outside the allowed range [1, inf)")
+    pts, face = SAMPLERS[method](mesh, int(n), np.random.default_rng(seed))
     areas = np.full(len(pts), float(mesh.area) / len(pts))
     return np.asarray(pts, dtype=np.float64), np.asarray(face, dtype=np.int64), areas
 

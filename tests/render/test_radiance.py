@@ -125,6 +125,19 @@ def test_disc_integral_limits():
     assert float(rad.disc_integral(0.0, medium)[0]) == 0.0
 
 
+def test_weighted_disc_integral_against_quadrature():
+    medium = jaxsss.Medium(jnp.array([0.001, 0.05, 1.0]), jnp.array([1.0, 2.0, 0.5]), 1.4)
+    x, w = np.polynomial.legendre.leggauss(400)
+    for rho0 in (0.05, 0.7, 5.0):
+        r = jnp.asarray(0.5 * rho0 * (x + 1))[:, None]
+        t = r / rho0
+        weight = 1 - 3 * t**2 + 2 * t**3
+        quad = jnp.sum(jnp.asarray(0.5 * rho0 * w)[:, None] * weight * 2 * jnp.pi * r * jaxsss.dipole_profile(r, medium),
+                       axis=0)
+        np.testing.assert_allclose(rad.weighted_disc_integral(rho0, medium), quad, rtol=1e-9)
+    assert float(rad.weighted_disc_integral(0.0, medium)[0]) == 0.0
+
+
 def test_entity_flux_range_sums():
     rng = np.random.default_rng(0)
     flux = jnp.asarray(rng.random((10, 3)))
@@ -154,17 +167,24 @@ def test_pairs_equal_direct_sum_and_shared_channel():
     medium = jaxsss.Medium(jnp.array([0.01, 0.05, 0.2]), jnp.array([1.0, 2.0, 3.0]), 1.3)
     a = rad.exitance_pairs(medium, q, s, flux, pq, pe)
     b = rad.exitance_direct(medium, q, s, flux, jnp.ones(40), 0.0, block=4)
-    # With a near disc: pairs inside rho0 are replaced by the disc integral times the mean near irradiance.
+    # With a near field: pairs inside rho0 are split by w(r) between the spread (weighted-mean irradiance times I_w)
+    # and the point sum.
     rho0 = 1.0
     c = rad.exitance_direct(medium, q, s, flux, jnp.full(40, 0.5), rho0, block=4)
     r = np.linalg.norm(np.asarray(q)[:, None] - np.asarray(s)[None], axis=-1)
-    near = r < rho0
+    t = np.clip(r / rho0, 0, 1)
+    w = 1 - 3 * t**2 + 2 * t**3
     prof = np.asarray(jaxsss.dipole_profile(jnp.asarray(r)[..., None], medium))
-    far = np.sum(np.where(near[..., None], 0, prof) * np.asarray(flux)[None], axis=1)
-    mean_irr = (near[..., None] * np.asarray(flux)[None]).sum(1) / np.maximum(0.5 * near.sum(1), 1e-300)[:, None]
-    np.testing.assert_allclose(c, far + mean_irr * np.asarray(rad.disc_integral(rho0, medium)), rtol=1e-12)
-    assert a.shape == b.shape == (7, 3)
-    np.testing.assert_allclose(a, b, rtol=1e-12)
+    point = np.sum((1 - w)[..., None] * prof * np.asarray(flux)[None], axis=1)
+    mean_irr = (w[..., None] * np.asarray(flux)[None]).sum(1) / np.maximum(0.5 * w.sum(1), 1e-300)[:, None]
+    np.testing.assert_allclose(c, point + mean_irr * np.asarray(rad.weighted_disc_integral(rho0, medium)),
+                               rtol=1e-12)
+    # The hierarchical near-field function agrees with the direct one when every pair is near.
+    nq = jnp.asarray(np.repeat(np.arange(7), 40).astype(np.int32))
+    ns = jnp.asarray(np.tile(np.arange(40), 7).astype(np.int32))
+    near = rad.exitance_near(medium, q, s, jnp.full(40, 0.5), flux, nq, ns, 100.0)
+    np.testing.assert_allclose(near, rad.exitance_direct(medium, q, s, flux, jnp.full(40, 0.5), 100.0, block=4),
+                               rtol=1e-12)
     grey = jaxsss.Medium(jnp.full(3, 0.02), jnp.full(3, 1.5), 1.3)
     np.testing.assert_allclose(rad.exitance_pairs(grey, q, s, flux, pq, pe, shared_channel=True),
                                rad.exitance_pairs(grey, q, s, flux, pq, pe), rtol=1e-13)
