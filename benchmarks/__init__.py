@@ -18,7 +18,8 @@ from benchmarks._harness import (
     write_results,
 )
 
-BENCHMARKS = ("profile_throughput", "rd_inversion", "mc_throughput", "transport_error", "fit_speed", "fit_accuracy")
+BENCHMARKS = ("profile_throughput", "rd_inversion", "mc_throughput", "transport_error", "fit_speed", "fit_accuracy",
+              "render_eps", "render_density", "render_bssrdf_sampling")
 """Module names under :mod:`benchmarks` run by :mod:`benchmarks.run_all`, in order."""
 
 __all__ = [

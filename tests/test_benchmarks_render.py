@@ -1,0 +1,100 @@
+"""The renderer benchmarks' --quick paths: each writes its JSON (rows with the harness schema) and PNG."""
+
+from __future__ import annotations
+
+import json
+import sys
+from pathlib import Path
+
+import pytest
+
+ROOT = Path(__file__).resolve().parents[1]
+if str(ROOT) not in sys.path:  # `benchmarks` is not an installed package; it runs from the repository root.
+    sys.path.insert(0, str(ROOT))
+
+from benchmarks import (
+    BENCHMARKS,
+    ROW_KEYS,
+    render_bssrdf_sampling,
+    render_density,
+    render_eps,
+)
+
+pytestmark = pytest.mark.filterwarnings("ignore::RuntimeWarning")
+
+
+def _load(out: Path, name: str) -> dict:
+    doc = json.loads((out / f"{name}.json").read_text())
+    assert (out / f"{name}.png").stat().st_size > 0
+    assert doc["quick"] is True and doc["benchmark"] == name
+    for row in doc["rows"]:
+        assert list(row)[: len(ROW_KEYS)] == list(ROW_KEYS)
+        assert row["seconds"] > 0
+    return doc
+
+
+def test_render_benchmarks_are_registered():
+    assert {"render_eps", "render_density", "render_bssrdf_sampling"} <= set(BENCHMARKS)
+
+
+def test_render_eps_quick(tmp_path):
+    assert render_eps.main(["--quick", "--out", str(tmp_path)]) == 0
+    doc = _load(tmp_path, "render_eps")
+    hier = [r for r in doc["rows"] if r["method"] == "hierarchical"]
+    assert [r["eps"] for r in hier] == [0.2, 0.05]
+    # Same irradiance samples as the direct reference; the masked render equals the full render on the subset.
+    assert doc["summary"]["same_samples_all_runs"]
+    assert hier[-1]["masked_vs_full_render_max_rel_diff"] < 1e-9
+    # Smaller eps, smaller error (both well under a few percent on the teapot).
+    assert hier[1]["error"] < hier[0]["error"] < 0.05
+    assert all(r["speedup_vs_direct"] > 0 and r["mean_ciede2000"] >= 0 for r in hier)
+
+
+def test_render_density_quick(tmp_path):
+    assert render_density.main(["--quick", "--out", str(tmp_path)]) == 0
+    doc = _load(tmp_path, "render_density")
+    swept = [r for r in doc["rows"] if r["method"] == "hierarchical"]
+    assert [r["density"] for r in swept] == [0.5, 1.0]
+    assert all(0 < r["error"] < 0.5 for r in swept)
+    # The reference's own noise is measured with a second seed.
+    assert 0 < doc["summary"]["reference_noise_estimate"] < 0.5
+
+
+def test_render_bssrdf_sampling_quick(tmp_path):
+    assert render_bssrdf_sampling.main(["--quick", "--out", str(tmp_path)]) == 0
+    doc = _load(tmp_path, "render_bssrdf_sampling")
+    s = doc["summary"]
+    assert s["equal_time_K"] >= 1 and s["speedup_at_equal_error"] > 0
+    mc = [r for r in doc["rows"] if r["method"] == "bssrdf_sampling" and "noise_relative_rms" in r]
+    # Monte Carlo noise falls with K (about 1/sqrt(K)).
+    assert mc[-1]["noise_relative_rms"] < mc[0]["noise_relative_rms"]
+
+
+def test_bssrdf_sampling_estimator_is_unbiased_on_a_lit_plane():
+    """The disk-projection estimator against the exact integral on a plane under a directional light."""
+    import math
+
+    import numpy as np
+
+    import jaxsss
+    from jaxsss.render import parse_scene
+    from jaxsss.render.radiance import disc_integral
+    from jaxsss.render.rays import SceneGeometry
+
+    scene = parse_scene({
+        "mesh": {"builtin": "slab", "width": 300.0, "depth": 300.0, "thickness": 62.0, "subdivisions": 2},
+        "material": {"name": "marble"},
+        "light": [{"type": "directional", "direction": [0.0, 0.0, -1.0], "intensity": 1.0}],
+        "camera": {"position": [0.0, -100.0, 100.0], "look_at": [0.0, 0.0, 0.0], "resolution": [8, 8]},
+    })
+    geometry = SceneGeometry(scene.mesh)
+    top = scene.mesh.bounds[1][2]
+    x = np.array([[0.0, 0.0, top], [20.0, -10.0, top]])
+    n = np.array([[0.0, 0.0, 1.0]] * 2)
+    medium = scene.material.medium
+    r_max = math.log(1.0 / render_bssrdf_sampling.TOL) / float(np.min(np.asarray(medium.sigma_tr)))
+    expect = (1.0 - float(jaxsss.fresnel_reflectance(medium.eta, 1.0))) * np.asarray(disc_integral(r_max, medium))
+    mean, var, _ = render_bssrdf_sampling.bssrdf_exitance(scene, geometry, x, n, 4000, seed=5)
+    z = (mean - expect) / np.sqrt(var)
+    assert np.all(np.abs(z) < 4.5), z
+    assert np.all(np.sqrt(var) / expect < 0.05)
