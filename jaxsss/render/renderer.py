@@ -175,6 +175,145 @@ def _split_near(inter, q_pos, tree, sorted_pos, rho0, chunk: int = 1 << 22):
     return far, near_q, near_s, nodes_inside
 
 
+class _Shading(NamedTuple):
+    """The shaded points (camera-ray hits on the translucent object) and the material-free part of the image."""
+
+    pos: np.ndarray  # (Q, 3)
+    normal: np.ndarray  # (Q, 3)
+    to_eye: np.ndarray  # (Q, 3)
+    pixel: np.ndarray  # (Q,)
+    light: Any  # LightField at the points, or None
+    constant: np.ndarray  # (H * W, C)
+    shape: tuple
+    spp: int
+    n_rays: int
+
+    def subset(self, idx: np.ndarray) -> _Shading:
+        light = None if self.light is None else type(self.light)(*(a[idx] for a in self.light))
+        return self._replace(pos=self.pos[idx], normal=self.normal[idx], to_eye=self.to_eye[idx],
+                             pixel=self.pixel[idx], light=light)
+
+
+def _pass1(scene, plan: ScenePlan):
+    """``(geometry, samples, tree, octree_seconds)``: the ray-casting scene, pass-1 irradiance samples and their
+    octree (centroids weighted by the channel-mean direct plus indirect flux)."""
+    geometry = SceneGeometry(scene.mesh, [o.mesh for o in scene.occluders])
+    samples = irradiance_samples(scene, geometry, plan.n_samples, shadows=plan.shadows, indirect=plan.indirect,
+                                 seed=scene.render.seed)
+    t0 = time.perf_counter()
+    weight = samples.areas * samples.light.irradiance.sum(axis=1).mean(axis=-1)
+    if samples.indirect is not None:
+        weight = weight + samples.areas * samples.indirect.mean(axis=-1)
+    tree = build_octree(samples.positions, samples.areas, weight)
+    return geometry, samples, tree, time.perf_counter() - t0
+
+
+def _shading_points(scene, geometry, plan: ScenePlan, resolution, pixel_mask, n_channels: int) -> _Shading:
+    """Camera rays, their hits, the occluders' and background's constant image, and lighting at the shaded points."""
+    rays = camera_rays(scene.camera, resolution, seed=scene.render.seed)
+    h, w = rays.shape
+    keep = np.ones(len(rays.pixel), dtype=bool) if pixel_mask is None else np.asarray(pixel_mask).reshape(-1)[
+        rays.pixel]
+    hits = geometry.first_hit(rays.origins[keep], rays.directions[keep])
+    ray_idx = np.flatnonzero(keep)
+    constant = np.zeros((h * w, n_channels))
+    background = np.broadcast_to(np.asarray(scene.output.background, dtype=np.float64), (n_channels,))
+    missed = ray_idx[~hits.hit]
+    np.add.at(constant, rays.pixel[missed], background / rays.spp)
+    on_occ = hits.obj >= 1
+    if on_occ.any():
+        idx = np.flatnonzero(on_occ)
+        y = hits.position[idx]
+        ny = geometry.shading_normals(hits.face[idx], y)
+        ny = np.where(np.einsum("ij,ij->i", ny, rays.directions[ray_idx[idx]])[:, None] > 0, -ny, ny)
+        direct = light_field(scene.lights, y, ny, geometry).irradiance.sum(axis=1)
+        albedo = np.stack([scene.occluders[k - 1].albedo for k in hits.obj[idx]])
+        # Lambertian occluder: L = albedo / pi * E.
+        np.add.at(constant, rays.pixel[ray_idx[idx]], albedo / np.pi * direct / rays.spp)
+    on_obj = np.flatnonzero(hits.obj == OBJECT_TRANSLUCENT)
+    q_pos = hits.position[on_obj]
+    q_normal = geometry.shading_normals(hits.face[on_obj], q_pos)
+    to_eye = -rays.directions[ray_idx[on_obj]]
+    # A smooth normal can face away from the eye at silhouettes; shade with the normal flipped towards the eye.
+    back = np.einsum("ij,ij->i", q_normal, to_eye) < 0
+    q_normal[back] = q_normal[back] - 2 * np.einsum("ij,ij->i", q_normal[back], to_eye[back])[:, None] * to_eye[back]
+    q_light = None
+    if plan.single_scattering or plan.specular:
+        q_light = light_field(scene.lights, q_pos, q_normal, geometry if plan.shadows else None)
+    return _Shading(q_pos, q_normal, to_eye, rays.pixel[ray_idx[on_obj]], q_light, constant, (h, w), rays.spp,
+                    len(rays.pixel))
+
+
+def near_radius(samples) -> float:
+    """The near-field radius ``rho_0`` (mm) for these samples: :data:`NEAR_RADIUS_IN_SAMPLES` sample radii."""
+    return NEAR_RADIUS_IN_SAMPLES * math.sqrt(float(np.mean(samples.areas)) / math.pi)
+
+
+def _pair_lists(tree, samples, q_pos, plan: ScenePlan, *, progress: bool, block_pairs: int):
+    """Interaction lists for the points ``q_pos``: far pairs in blocks, near pairs, and counts."""
+    rho0 = near_radius(samples)
+    if plan.method == "direct" or len(q_pos) == 0:
+        return dict(pq=None, pe=None, near_q=None, near_s=None, rho0=rho0, counts=np.full(len(q_pos), samples.n),
+                    nodes_inside=0)
+    inter = build_interactions(tree, q_pos, plan.eps, r_cut=plan.r_cut, progress=progress)
+    counts = inter.counts()
+    far, near_q, near_s, nodes_inside = _split_near(inter, q_pos, tree, samples.positions[tree.order], rho0)
+    pq = jnp.asarray(_blocks(inter.query[far].astype(np.int32), len(q_pos), block_pairs))
+    pe = jnp.asarray(_blocks(inter.entity[far].astype(np.int32), 0, block_pairs))
+    return dict(pq=pq, pe=pe, near_q=near_q, near_s=near_s, rho0=rho0, counts=counts, nodes_inside=nodes_inside)
+
+
+def _assemble(scene, plan: ScenePlan, samples, tree, shading: _Shading, pairs: dict | None) -> Prepared:
+    def opt(a):
+        return None if a is None else jnp.asarray(a)
+
+    order = tree.order
+    pairs = pairs or dict(pq=None, pe=None, near_q=None, near_s=None, rho0=near_radius(samples))
+    light = shading.light
+    return Prepared(
+        sample_pos=jnp.asarray(samples.positions[order]),
+        areas=jnp.asarray(samples.areas[order]),
+        light_cos=jnp.asarray(samples.light.cos[order]),
+        light_irradiance=jnp.asarray(samples.light.irradiance[order]),
+        indirect=opt(None if samples.indirect is None else samples.indirect[order]),
+        texture=opt(None if samples.texture is None else samples.texture[order]),
+        ent_pos=jnp.asarray(tree.centroid),
+        ent_start=jnp.asarray(tree.start),
+        ent_stop=jnp.asarray(tree.stop),
+        query_pos=jnp.asarray(shading.pos),
+        query_normal=jnp.asarray(shading.normal),
+        to_eye=jnp.asarray(shading.to_eye),
+        query_to_light=None if light is None else jnp.asarray(light.to_light),
+        query_irradiance=None if light is None else jnp.asarray(light.irradiance),
+        pair_query=pairs["pq"],
+        pair_entity=pairs["pe"],
+        near_query=opt(pairs["near_q"]),
+        near_sample=opt(pairs["near_s"]),
+        rho0=jnp.asarray(pairs["rho0"]),
+        query_pixel=jnp.asarray(shading.pixel),
+        constant=jnp.asarray(shading.constant),
+        shape=shading.shape,
+        spp=shading.spp,
+        method=plan.method,
+        single_scattering=plan.single_scattering,
+        specular_roughness=scene.material.specular_roughness if plan.specular else None,
+        shared_channel=plan.shared_channel,
+    )
+
+
+def _pair_info(pairs: dict, n_points: int) -> dict[str, Any]:
+    counts = pairs["counts"]
+    return {
+        "n_interactions": int(np.sum(counts)),
+        "interactions_per_point_mean": float(np.mean(counts)) if len(counts) else 0.0,
+        "interactions_per_point_max": int(np.max(counts)) if len(counts) else 0,
+        "near_radius_mm": pairs["rho0"],
+        "near_samples_per_point_mean": (float(len(pairs["near_q"]) / max(n_points, 1))
+                                        if pairs["near_q"] is not None else None),
+        "octree_nodes_accepted_inside_near_radius": int(pairs["nodes_inside"]),
+    }
+
+
 def prepare(scene, *, method: str | None = None, eps: float | None = None, resolution=None,
             plan: ScenePlan | None = None, progress: bool = False, pixel_mask: np.ndarray | None = None,
             cutoff: bool = True, share_channels: bool = True, block_pairs: int = BLOCK_PAIRS):
@@ -199,130 +338,38 @@ def prepare(scene, *, method: str | None = None, eps: float | None = None, resol
     t0 = time.perf_counter()
     plan = plan or make_plan(scene, method=method, eps=eps, cutoff=cutoff, share_channels=share_channels)
     timings["plan"] = time.perf_counter() - t0
-    bar = tqdm(total=4, desc="render: geometry", disable=not progress, leave=False)
+    bar = tqdm(total=3, desc="render: geometry", disable=not progress, leave=False)
 
-    # Pass 1: irradiance samples.
+    # Pass 1: irradiance samples and their octree.
     t0 = time.perf_counter()
-    geometry = SceneGeometry(scene.mesh, [o.mesh for o in scene.occluders])
-    samples = irradiance_samples(scene, geometry, plan.n_samples, shadows=plan.shadows, indirect=plan.indirect,
-                                 seed=scene.render.seed)
-    timings["pass1_irradiance"] = time.perf_counter() - t0
+    geometry, samples, tree, timings["octree"] = _pass1(scene, plan)
+    timings["pass1_irradiance"] = time.perf_counter() - t0 - timings["octree"]
     bar.set_postfix_str(f"{samples.n} samples")
     bar.update()
 
     # Camera rays and lighting at the shaded points.
     t0 = time.perf_counter()
-    rays = camera_rays(scene.camera, resolution, seed=scene.render.seed)
-    h, w = rays.shape
-    keep = np.ones(len(rays.pixel), dtype=bool) if pixel_mask is None else np.asarray(pixel_mask).reshape(-1)[
-        rays.pixel]
-    hits = geometry.first_hit(rays.origins[keep], rays.directions[keep])
-    ray_idx = np.flatnonzero(keep)
-    n_channels = samples.light.irradiance.shape[-1]
-    constant = np.zeros((h * w, n_channels))
-    background = np.broadcast_to(np.asarray(scene.output.background, dtype=np.float64), (n_channels,))
-    missed = ray_idx[~hits.hit]
-    np.add.at(constant, rays.pixel[missed], background / rays.spp)
-    on_occ = hits.obj >= 1
-    if on_occ.any():
-        idx = np.flatnonzero(on_occ)
-        y = hits.position[idx]
-        ny = geometry.shading_normals(hits.face[idx], y)
-        ny = np.where(np.einsum("ij,ij->i", ny, rays.directions[ray_idx[idx]])[:, None] > 0, -ny, ny)
-        direct = light_field(scene.lights, y, ny, geometry).irradiance.sum(axis=1)
-        albedo = np.stack([scene.occluders[k - 1].albedo for k in hits.obj[idx]])
-        # Lambertian occluder: L = albedo / pi * E.
-        np.add.at(constant, rays.pixel[ray_idx[idx]], albedo / np.pi * direct / rays.spp)
-    on_obj = np.flatnonzero(hits.obj == OBJECT_TRANSLUCENT)
-    q_pos = hits.position[on_obj]
-    q_normal = geometry.shading_normals(hits.face[on_obj], q_pos)
-    to_eye = -rays.directions[ray_idx[on_obj]]
-    # A smooth normal can face away from the eye at silhouettes; shade with the normal flipped towards the eye.
-    back = np.einsum("ij,ij->i", q_normal, to_eye) < 0
-    q_normal[back] = q_normal[back] - 2 * np.einsum("ij,ij->i", q_normal[back], to_eye[back])[:, None] * to_eye[back]
-    q_pixel = rays.pixel[ray_idx[on_obj]]
-    q_light = None
-    if plan.single_scattering or plan.specular:
-        q_light = light_field(scene.lights, q_pos, q_normal, geometry if plan.shadows else None)
+    shading = _shading_points(scene, geometry, plan, resolution, pixel_mask, samples.light.irradiance.shape[-1])
     timings["camera_rays"] = time.perf_counter() - t0
-    bar.set_postfix_str(f"{len(q_pos)} shaded points")
-    bar.update()
-
-    # Octree over the samples (centroids weighted by the channel-mean direct irradiance times area).
-    t0 = time.perf_counter()
-    weight = samples.areas * samples.light.irradiance.sum(axis=1).mean(axis=-1)
-    if samples.indirect is not None:
-        weight = weight + samples.areas * samples.indirect.mean(axis=-1)
-    tree = build_octree(samples.positions, samples.areas, weight)
-    timings["octree"] = time.perf_counter() - t0
+    bar.set_postfix_str(f"{len(shading.pos)} shaded points")
     bar.update()
 
     t0 = time.perf_counter()
-    order = tree.order
-    sorted_pos = samples.positions[order]
-    rho0 = NEAR_RADIUS_IN_SAMPLES * math.sqrt(float(np.mean(samples.areas)) / math.pi)
-    near_q = near_s = None
-    nodes_inside_rho0 = 0
-    if plan.method == "direct" or len(q_pos) == 0:
-        pq = pe = None
-        counts = np.full(len(q_pos), samples.n)
-    else:
-        inter = build_interactions(tree, q_pos, plan.eps, r_cut=plan.r_cut, progress=progress)
-        counts = inter.counts()
-        far, near_q, near_s, nodes_inside_rho0 = _split_near(inter, q_pos, tree, sorted_pos, rho0)
-        pq = jnp.asarray(_blocks(inter.query[far].astype(np.int32), len(q_pos), block_pairs))
-        pe = jnp.asarray(_blocks(inter.entity[far].astype(np.int32), 0, block_pairs))
-        del inter, far
+    pairs = _pair_lists(tree, samples, shading.pos, plan, progress=progress, block_pairs=block_pairs)
     timings["interactions"] = time.perf_counter() - t0
     bar.update()
     bar.close()
 
-    def opt(a):
-        return None if a is None else jnp.asarray(a)
-
-    prepared = Prepared(
-        sample_pos=jnp.asarray(samples.positions[order]),
-        areas=jnp.asarray(samples.areas[order]),
-        light_cos=jnp.asarray(samples.light.cos[order]),
-        light_irradiance=jnp.asarray(samples.light.irradiance[order]),
-        indirect=opt(None if samples.indirect is None else samples.indirect[order]),
-        texture=opt(None if samples.texture is None else samples.texture[order]),
-        ent_pos=jnp.asarray(tree.centroid),
-        ent_start=jnp.asarray(tree.start),
-        ent_stop=jnp.asarray(tree.stop),
-        query_pos=jnp.asarray(q_pos),
-        query_normal=jnp.asarray(q_normal),
-        to_eye=jnp.asarray(to_eye),
-        query_to_light=None if q_light is None else jnp.asarray(q_light.to_light),
-        query_irradiance=None if q_light is None else jnp.asarray(q_light.irradiance),
-        pair_query=pq,
-        pair_entity=pe,
-        near_query=None if near_q is None else jnp.asarray(near_q),
-        near_sample=None if near_s is None else jnp.asarray(near_s),
-        rho0=jnp.asarray(rho0),
-        query_pixel=jnp.asarray(q_pixel),
-        constant=jnp.asarray(constant),
-        shape=(h, w),
-        spp=rays.spp,
-        method=plan.method,
-        single_scattering=plan.single_scattering,
-        specular_roughness=scene.material.specular_roughness if plan.specular else None,
-        shared_channel=plan.shared_channel,
-    )
+    prepared = _assemble(scene, plan, samples, tree, shading, pairs)
     info = {
         "timings": timings,
         "seconds_geometry": time.perf_counter() - t_all,
         "n_samples": int(samples.n),
-        "n_shaded_points": len(q_pos),
-        "n_pixels": int(h * w),
-        "n_rays": len(rays.pixel),
+        "n_shaded_points": len(shading.pos),
+        "n_pixels": int(shading.shape[0] * shading.shape[1]),
+        "n_rays": shading.n_rays,
         "n_octree_entities": len(tree.start),
-        "n_interactions": int(np.sum(counts)),
-        "interactions_per_point_mean": float(np.mean(counts)) if len(counts) else 0.0,
-        "interactions_per_point_max": int(np.max(counts)) if len(counts) else 0,
-        "near_radius_mm": rho0,
-        "near_samples_per_point_mean": float(len(near_q) / max(len(q_pos), 1)) if near_q is not None else None,
-        "octree_nodes_accepted_inside_near_radius": int(nodes_inside_rho0),
+        **_pair_info(pairs, len(shading.pos)),
         "camera_forward": camera_frame(scene.camera)[0].tolist(),
     }
     return prepared, plan, info
