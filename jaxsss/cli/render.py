@@ -11,6 +11,8 @@ import argparse
 import json
 from pathlib import Path
 
+import numpy as np
+
 from jaxsss.cli._common import UNITS_EPILOG, CLIError, number
 
 NAME = "render"
@@ -32,8 +34,15 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
     p.add_argument("-o", "--output", type=Path, default=None,
                    help="output PNG (sRGB); OUT.npy (linear) and OUT.exr are written beside it "
                         "(default: the scene name with .png in the current directory)")
-    p.add_argument("--method", choices=("hierarchical", "direct"), default=None,
-                   help="pass-2 method (default: the scene's [render].method)")
+    p.add_argument("--method", choices=("hierarchical", "direct", "cached"), default=None,
+                   help="pass-2 method (default: the scene's [render].method); cached = irradiance caching with "
+                        "gradients (Keng et al. 2006) on top of the hierarchical sum")
+    p.add_argument("--cache-error", type=number, default=0.1, metavar="A",
+                   help="cached method: relative error bound a of the split-disk weights, > 0 (default 0.1)")
+    p.add_argument("--one-pass", action="store_true",
+                   help="cached method: interpolate from the caches made so far (single pass) instead of all")
+    p.add_argument("--debug-images", action="store_true",
+                   help="cached method: also write OUT_caches.png, OUT_gradient.png and OUT_variance.png")
     p.add_argument("--eps", type=number, default=None,
                    help="solid-angle threshold of the hierarchical sum, sr (Eq. 12; default: the scene's)")
     p.add_argument("--resolution", type=int, nargs=2, metavar=("W", "H"), default=None,
@@ -63,7 +72,23 @@ def run(args) -> int:
             args.json.write_text(json.dumps({"plan": plan.to_dict()}, indent=2, default=float) + "\n")
         return 0
     out = args.output or Path(args.scene.with_suffix(".png").name)
-    result = render(scene, method=args.method, eps=args.eps, resolution=args.resolution, progress=not args.quiet)
+    if args.method == "cached":
+        from jaxsss.render.cache import debug_images, render_cached
+
+        if args.cache_error <= 0:
+            raise CLIError(f"--cache-error {args.cache_error:g} is outside the allowed range (0, inf)")
+        result = render_cached(scene, args.cache_error, eps=args.eps, resolution=args.resolution,
+                               one_pass=args.one_pass, progress=not args.quiet)
+        debug = result.report.pop("_debug")
+        if args.debug_images:
+            from jaxsss.render.output import write_png
+
+            for name, img in debug_images(result.prepared, debug).items():
+                scaled = img / img.max() if img.max() > 0 else img
+                write_png(out.with_name(f"{out.stem}_{name}.png"), np.repeat(scaled[..., None], 3, axis=-1))
+    else:
+        result = render(scene, method=args.method, eps=args.eps, resolution=args.resolution,
+                        progress=not args.quiet)
     paths = write_outputs(out, result.image, result.report, exposure=scene.output.exposure, exr=not args.no_exr,
                           json_path=args.json)
     if not args.quiet:
@@ -73,5 +98,9 @@ def run(args) -> int:
         print(f"  {r['resolution'][0]}x{r['resolution'][1]}, {r['n_samples']} samples, {r['n_shaded_points']} shaded "
               f"points, {r['interactions_per_point_mean']:.1f} interactions per point (max "
               f"{r['interactions_per_point_max']})")
+        if r["method"] == "cached":
+            print(f"  {r['n_caches']} caches ({100 * r['cache_ratio']:.2f}% of the shaded points), estimated "
+                  f"interpolation error mean {r['interpolation_error_estimate_mean']:.3g}, max "
+                  f"{r['interpolation_error_estimate_max']:.3g}")
         print("  " + ", ".join(f"{k} {v:.2f} s" for k, v in t.items()) + f"; total {r['seconds_total']:.2f} s")
     return 0

@@ -10,9 +10,12 @@ the material is a JAX function of arrays, so ``prepared.image(medium)`` is diffe
 - The plan: :func:`make_plan` -> :class:`ScenePlan` (terms kept and left out, one reason each).
 - Rendering: :func:`prepare` (geometry once) -> :class:`Prepared` with ``image(medium)``; :func:`render` (the whole
   job with timings and report) -> :class:`RenderResult`; :func:`write_outputs` (PNG, NPY, EXR, JSON).
+- Irradiance caching with gradients (Keng et al. 2006): :func:`prepare_cached`, :func:`render_cached`
+  (``jaxsss render --method cached``).
 - Pieces: :func:`build_octree`, :func:`build_interactions`, :mod:`jaxsss.render.radiance`.
 """
 
+from jaxsss.render.cache import CachedPrepared, place_caches, prepare_cached, render_cached
 from jaxsss.render.interactions import (
     Interactions,
     build_interactions,
@@ -45,6 +48,7 @@ from jaxsss.render.scene import (
 
 __all__ = [
     "BUILTIN_MESHES",
+    "CachedPrepared",
     "Camera",
     "Interactions",
     "Light",
@@ -68,8 +72,11 @@ __all__ = [
     "load_scene",
     "make_plan",
     "parse_scene",
+    "place_caches",
+    "prepare_cached",
     "prepare",
     "render",
+    "render_cached",
     "scene_with",
     "transform_matrix",
     "uv_at",

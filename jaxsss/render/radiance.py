@@ -41,14 +41,18 @@ from jaxsss.reflectance import medium_total_diffuse_reflectance
 
 __all__ = [
     "F_dt_external",
+    "dipole_gradient_factor",
     "disc_integral",
     "entity_flux",
     "exit_radiance",
     "exitance_direct",
+    "exitance_gradient_pairs",
     "exitance_near",
+    "exitance_near_gradient",
     "exitance_pairs",
     "hg_phase",
     "near_weight",
+    "near_weight_gradient_factor",
     "single_scattering",
     "single_scattering_share",
     "specular_ggx",
@@ -228,6 +232,89 @@ def exitance_pairs(medium: Medium, query_pos, ent_pos, ent_flux, pair_query, pai
     init = jnp.zeros((n_q + 1, ent_flux.shape[-1]), ent_flux.dtype)
     acc, _ = jax.lax.scan(step, init, (pair_query, pair_entity))
     return acc[:n_q]
+
+
+def dipole_gradient_factor(r, medium: Medium):
+    """``g(r)`` with ``grad_x R_d(|x - p|) = g(r) (x - p)``, in 1/mm^4 (caching paper Eq. 9 for the dipole kernel):
+
+    ``g = -alpha'/(4 pi) sum_{z in (z_r, z_v)} z e^{-sigma_tr d} (sigma_tr^2 d^2 + 3 sigma_tr d + 3) / d^5`` with
+    ``d = sqrt(r^2 + z^2)``, from ``d/dd[(1 + s d) e^{-s d} / d^3] = -e^{-s d} (s^2 d^2 + 3 s d + 3) / d^4`` and
+    ``dd/dr = r / d``. (The caching paper's Eq. 6 prints ``p_y - x`` for ``p_y - y``; trap 7.)
+    """
+    from jaxsss.profiles.dipole import dipole_depths
+
+    z_r, z_v = dipole_depths(medium)
+    s = medium.sigma_tr
+
+    def term(z):
+        d2 = r * r + z * z
+        d = jnp.sqrt(d2)
+        sd = s * d
+        return z * jnp.exp(-sd) * (sd * sd + 3.0 * sd + 3.0) / (d2 * d2 * d)
+
+    return -medium.alpha_prime / (4.0 * jnp.pi) * (term(z_r) + term(z_v))
+
+
+def near_weight_gradient_factor(r, rho0):
+    """``h(r)`` with ``grad_x w(|x - p|) = h(r) (x - p)`` for :func:`near_weight`: ``-6 (1 - t) / rho0^2`` inside
+    ``rho0``, 0 outside (finite at ``r = 0``)."""
+    positive = rho0 > 0
+    safe = jnp.where(positive, rho0, 1.0)
+    t = r / safe
+    return jnp.where(positive & (t < 1.0), -6.0 * (1.0 - t) / (safe * safe), 0.0)
+
+
+def exitance_gradient_pairs(medium: Medium, query_pos, ent_pos, ent_flux, pair_query, pair_entity):
+    """Analytic gradient of the far-field sum of :func:`exitance_pairs` with respect to the query position,
+    ``(Q, 3, C)`` W/mm^3: ``sum_k Phi_{e_k} g(r_k) (x_q - P_{e_k})`` (caching paper Eq. 9, summed through the same
+    hierarchical interaction list)."""
+    n_q = query_pos.shape[0]
+
+    @jax.checkpoint
+    def block(q, e):
+        delta = query_pos[jnp.minimum(q, n_q - 1)] - ent_pos[e]
+        r = _safe_distance(query_pos[jnp.minimum(q, n_q - 1)], ent_pos[e])
+        g = dipole_gradient_factor(r[:, None], medium) * ent_flux[e]  # (K, C)
+        return jax.ops.segment_sum(delta[:, :, None] * g[:, None, :], q, num_segments=n_q + 1,
+                                   indices_are_sorted=True)
+
+    def step(acc, qe):
+        return acc + block(*qe), None
+
+    init = jnp.zeros((n_q + 1, 3, ent_flux.shape[-1]), ent_flux.dtype)
+    acc, _ = jax.lax.scan(step, init, (pair_query, pair_entity))
+    return acc[:n_q]
+
+
+def exitance_near_gradient(medium: Medium, query_pos, sample_pos, sample_area, sample_flux, near_query, near_sample,
+                           rho0):
+    """Analytic gradient of :func:`exitance_near` with respect to the query position, ``(Q, 3, C)``.
+
+    With ``E = sum w Phi / sum w A``: ``grad = I_w (sum grad(w) Phi - E sum grad(w) A) / sum w A
+    + sum Phi [-grad(w) R_d + (1 - w) g (x - p)]``.
+    """
+    n_q = query_pos.shape[0]
+    x = query_pos[jnp.minimum(near_query, n_q - 1)]
+    delta = x - sample_pos[near_sample]
+    r = _safe_distance(x, sample_pos[near_sample])
+    w = near_weight(r, rho0)
+    dw = near_weight_gradient_factor(r, rho0)[:, None] * delta  # (K, 3)
+    flux = sample_flux[near_sample]  # (K, C)
+    area = sample_area[near_sample]
+
+    def seg(v):
+        return jax.ops.segment_sum(v, near_query, num_segments=n_q + 1, indices_are_sorted=True)[:n_q]
+
+    wa = seg(w * area)
+    safe_wa = jnp.where(wa > 0, wa, 1.0)
+    e_mean = seg(w[:, None] * flux) / safe_wa[:, None]  # (Q, C)
+    grad_e = (seg(dw[:, :, None] * flux[:, None, :]) - e_mean[:, None, :] * seg(dw * area[:, None])[:, :, None]) \
+        / safe_wa[:, None, None]
+    prof = _dipole_profile(r[:, None], medium)  # (K, C)
+    g = dipole_gradient_factor(r[:, None], medium)  # (K, C)
+    point = seg(flux[:, None, :] * (-dw[:, :, None] * prof[:, None, :] + (1.0 - w)[:, None, None]
+                                    * g[:, None, :] * delta[:, :, None]))
+    return grad_e * weighted_disc_integral(rho0, medium) + point
 
 
 def exitance_direct(medium: Medium, query_pos, sample_pos, sample_flux, sample_area, rho0, *, block: int = 64,

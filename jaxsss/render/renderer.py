@@ -105,6 +105,28 @@ class Prepared(eqx.Module):
                                  shared_channel=self.shared_channel)
         return far + self.exitance_near(medium, flux)
 
+    def exitance_gradient(self, medium: Medium):
+        """Analytic gradient of ``M_o`` with respect to the shaded point's position, ``(Q, 3, C)`` W/mm^3 (caching
+        paper Eq. 9 through the same interaction list; hierarchical method only)."""
+        flux = self.sample_flux(medium)
+        ent_flux = rad.entity_flux(flux, self.ent_start, self.ent_stop)
+        far = rad.exitance_gradient_pairs(medium, self.query_pos, self.ent_pos, ent_flux, self.pair_query,
+                                          self.pair_entity)
+        near = rad.exitance_near_gradient(medium, self.query_pos, self.sample_pos, self.areas, flux, self.near_query,
+                                          self.near_sample, self.rho0)
+        return far + near
+
+    def exitance_gradient_autodiff(self, medium: Medium):
+        """The same gradient by forward-mode autodiff of :meth:`exitance` in the query positions (three JVPs: each
+        point's exitance depends on its own position only), ``(Q, 3, C)``."""
+
+        def at(query_pos):
+            return eqx.tree_at(lambda p: p.query_pos, self, query_pos).exitance(medium)
+
+        cols = [jax.jvp(at, (self.query_pos,), (jnp.zeros_like(self.query_pos).at[:, j].set(1.0),))[1]
+                for j in range(3)]
+        return jnp.stack(cols, axis=1)
+
     def exitance_near(self, medium: Medium, flux):
         """The near-field disc part of ``M_o`` (hierarchical method), ``(Q, C)``."""
         return rad.exitance_near(medium, self.query_pos, self.sample_pos, self.areas, flux, self.near_query,

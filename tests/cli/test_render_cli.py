@@ -109,3 +109,18 @@ def test_bad_scene_file_names_file_and_key(capsys, tmp_path):
     assert "bad.toml" in err and "material.sigma_a" in err and "-0.1" in err
     code, out, err = run_cli(capsys, "render", tmp_path / "missing.toml")
     assert code == 2 and "missing.toml" in err
+
+
+def test_cached_method_with_debug_images(capsys, tmp_path, small_scene):
+    out = tmp_path / "c.png"
+    report_path = tmp_path / "c.json"
+    code, stdout, err = run_cli(capsys, "render", small_scene, "-o", out, "--method", "cached", "--cache-error", 0.2,
+                                "--debug-images", "--json", report_path, "--no-exr")
+    assert code == 0, err
+    for name in ("c.png", "c_caches.png", "c_gradient.png", "c_variance.png"):
+        assert (tmp_path / name).read_bytes()[:8] == PNG_SIGNATURE
+    report = json.loads(report_path.read_text())
+    assert report["method"] == "cached" and report["n_caches"] > 0 and 0 < report["cache_ratio"] <= 1
+    assert "caches (" in stdout
+    code, _, err = run_cli(capsys, "render", small_scene, "--method", "cached", "--cache-error", 0)
+    assert code == 2 and "--cache-error" in err
