@@ -320,7 +320,7 @@ def render_cached(scene, error_bound: float, *, eps: float | None = None, resolu
                   gradient: str = "analytic", progress: bool = False):
     """Render with the cached method: :func:`prepare_cached`, then ``S`` and ``grad S`` at the caches and the
     interpolated image (compilation timed apart). Returns a :class:`jaxsss.render.RenderResult`."""
-    from jaxsss.render.renderer import RenderResult, _image_stats
+    from jaxsss.render.renderer import RenderResult, render_report
 
     t_all = time.perf_counter()
     cached, plan, info, placement = prepare_cached(scene, error_bound, eps=eps, resolution=resolution,
@@ -337,19 +337,7 @@ def render_cached(scene, error_bound: float, *, eps: float | None = None, resolu
     t0 = time.perf_counter()
     image = np.asarray(image_fn(cached, medium))
     timings["interpolation_and_image"] = time.perf_counter() - t0
-    seconds_total = time.perf_counter() - t_all
-    report = {
-        "seconds_total": seconds_total,
-        "seconds_total_excluding_compile": seconds_total - timings["pass2_compile"],
-        "timings": timings,
-        "method": "cached",
-        "eps": plan.eps,
-        "resolution": [cached.points.shape[1], cached.points.shape[0]],
-        "spp": cached.points.spp,
-        **{k: v for k, v in info.items() if k != "timings"},
-        "plan": plan.to_dict(),
-        "image": _image_stats(image),
-    }
+    report = render_report(time.perf_counter() - t_all, timings, "cached", plan, cached.points, info, image)
     debug = {
         "cache_point": placement.cache_point,
         "spread": placement.spread,

@@ -434,6 +434,24 @@ def _image_stats(image: np.ndarray) -> dict[str, Any]:
     }
 
 
+def render_report(seconds_total: float, timings: dict, method: str, plan: ScenePlan, prepared: Prepared, info: dict,
+                  image: np.ndarray) -> dict[str, Any]:
+    """The JSON-ready render report shared by every method: totals (compilation apart), per-pass timings, counts,
+    the plan and image statistics. ``prepared`` gives the image shape and samples per pixel."""
+    return {
+        "seconds_total": seconds_total,
+        "seconds_total_excluding_compile": seconds_total - timings["pass2_compile"],
+        "timings": timings,
+        "method": method,
+        "eps": plan.eps,
+        "resolution": [prepared.shape[1], prepared.shape[0]],
+        "spp": prepared.spp,
+        **{k: v for k, v in info.items() if k != "timings"},
+        "plan": plan.to_dict(),
+        "image": _image_stats(image),
+    }
+
+
 def render(scene, *, method: str | None = None, eps: float | None = None, resolution=None, progress: bool = False,
            pixel_mask=None, calls: int = 16) -> RenderResult:
     """Render a scene: :func:`prepare`, then pass 2 in ``calls`` jitted calls over the pair list (for a progress
@@ -482,17 +500,5 @@ def render(scene, *, method: str | None = None, eps: float | None = None, resolu
     t0 = time.perf_counter()
     image = np.asarray(finish(prepared, medium, exitance))
     timings["radiance_and_image"] = time.perf_counter() - t0
-    seconds_total = time.perf_counter() - t_all
-    report = {
-        "seconds_total": seconds_total,
-        "seconds_total_excluding_compile": seconds_total - timings["pass2_compile"],
-        "timings": timings,
-        "method": plan.method,
-        "eps": plan.eps,
-        "resolution": [prepared.shape[1], prepared.shape[0]],
-        "spp": prepared.spp,
-        **{k: v for k, v in info.items() if k not in ("timings",)},
-        "plan": plan.to_dict(),
-        "image": _image_stats(image),
-    }
+    report = render_report(time.perf_counter() - t_all, timings, plan.method, plan, prepared, info, image)
     return RenderResult(image, report, prepared, plan)
