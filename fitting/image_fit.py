@@ -118,7 +118,7 @@ def _grid_start(residuals, args, eta, n_channels):
 
 
 def fit_image(scene, target_image, *, method: str = "hierarchical", eps: float | None = None,
-              max_pixels: int | None = 4096, solver: str = "levenberg_marquardt", rtol: float = 1e-8,
+              cache_error: float = 0.3, max_pixels: int | None = 4096, solver: str = "levenberg_marquardt", rtol: float = 1e-8,
               atol: float = 1e-10, max_steps: int = 100, seed: int = 0, progress: bool = False) -> ImageFit:
     """Fit ``sigma_a`` and ``sigma_s'`` (per channel) of the scene's material to ``target_image``.
 
@@ -126,7 +126,10 @@ def fit_image(scene, target_image, *, method: str = "hierarchical", eps: float |
         scene: the :class:`jaxsss.render.Scene` whose geometry, lights, camera, eta and g produced the target (its
             own sigma_a and sigma_s' are NOT used).
         target_image: ``(H, W, C)`` linear radiance at the camera's resolution.
-        method, eps: the renderer's pass-2 method and threshold.
+        method, eps: the renderer's pass-2 method (``"hierarchical"``, ``"direct"`` or ``"cached"``) and threshold.
+        cache_error: the cached method's error bound ``a``. Its cache positions are placed once with the scene's own
+            material (its ``l_d`` and split-disk constant) and stay fixed during the fit; ``S`` and ``grad S`` at
+            the caches are re-evaluated for every trial material.
         max_pixels: fit on at most this many lit pixels, chosen at random (``None``: all of them).
         solver: a name in :data:`fitting.SOLVERS`.
         rtol, atol, max_steps: Optimistix termination.
@@ -147,8 +150,14 @@ def fit_image(scene, target_image, *, method: str = "hierarchical", eps: float |
     seconds = {}
     t0 = time.perf_counter()
     mask = _choose_pixels(target, max_pixels, seed)
-    prepared, _, _ = prepare(scene, method=method, eps=eps, pixel_mask=mask, cutoff=False, share_channels=False,
-                             progress=progress)
+    if method == "cached":
+        from jaxsss.render.cache import prepare_cached
+
+        prepared = prepare_cached(scene, cache_error, eps=eps, pixel_mask=mask, cutoff=False, share_channels=False,
+                                  progress=progress)[0]
+    else:
+        prepared, _, _ = prepare(scene, method=method, eps=eps, pixel_mask=mask, cutoff=False,
+                                 share_channels=False, progress=progress)
     seconds["prepare"] = time.perf_counter() - t0
     medium = scene.material.medium
     eta, g, fresnel = medium.eta, medium.g, medium.fresnel

@@ -16,6 +16,7 @@ from benchmarks import (
     BENCHMARKS,
     ROW_KEYS,
     render_bssrdf_sampling,
+    render_cache,
     render_density,
     render_eps,
 )
@@ -34,7 +35,7 @@ def _load(out: Path, name: str) -> dict:
 
 
 def test_render_benchmarks_are_registered():
-    assert {"render_eps", "render_density", "render_bssrdf_sampling"} <= set(BENCHMARKS)
+    assert {"render_eps", "render_density", "render_bssrdf_sampling", "render_cache"} <= set(BENCHMARKS)
 
 
 def test_render_eps_quick(tmp_path):
@@ -98,3 +99,13 @@ def test_bssrdf_sampling_estimator_is_unbiased_on_a_lit_plane():
     z = (mean - expect) / np.sqrt(var)
     assert np.all(np.abs(z) < 4.5), z
     assert np.all(np.sqrt(var) / expect < 0.05)
+
+
+def test_render_cache_quick(tmp_path):
+    assert render_cache.main(["--quick", "--out", str(tmp_path)]) == 0
+    doc = _load(tmp_path, "render_cache")
+    cached = [r for r in doc["rows"] if r["method"] == "cached"]
+    assert [r["a"] for r in cached] == [0.3, 1.0]
+    for r in cached:
+        assert 0 < r["cache_ratio"] <= 1 and r["speedup"] > 0
+        assert 0 <= r["error"] <= r["max_error"] < 0.2 and r["mean_ciede2000"] >= 0

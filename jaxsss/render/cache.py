@@ -27,13 +27,19 @@ Decisions (written down as the issue asks):
   Ward's criterion; the paper leaves this bound heuristic. ``V`` is taken over the samples whose normals also agree,
   so the far side of a thin part does not count as a dark half of the disk.
 
-Status (measured on the marble teapot at 256 x 256 against the hierarchical image, same samples): the cached image
-is 1.5-6x faster with 7-24% of the points as caches (a = 1 ... 0.1), but its relative RMS error is 4-8%, far from
-the paper's RMS 0.005 at 2% caches. Two causes were measured: the split-disk domains are conservative where light
-varies (half the caches sit in the tightest 20% of domains), and the first-order extrapolation with the exact
-gradient of our hierarchical sum makes the RMS worse than plain weighted averaging (7% against 4% at a = 0.3): the
-gradient of the point-sampled sum carries the sample noise of the near field, and the extrapolation distances (up
-to ``R = l_d``) are long for a curved object. Both are open (docs/benchmarks.md has no cached rows yet).
+- **Which gradient.** ``grad S`` in Eq. 10 is, by default, the far-field part of the paper's analytic gradient
+  (``gradient="far"``): the derivative of the hierarchical sum over the interaction list, leaving out the near-field
+  disc term within ``rho0`` (4 sample radii) of the cache. That term's exact derivative is dominated by where the
+  irradiance samples happen to lie (the point-sampled kernel's derivative is large at sample spacing), not by how the
+  light varies, and extrapolating it over a cache's domain paints each domain with a ramp. Measured on the marble
+  teapot at 256 x 256 (relative RMS against the hierarchical image): at ``a = 0.3`` (13% caches) no gradient gives
+  3.1%, the full analytic gradient 5.3%, the near term alone 5.7%, the far term alone 2.6%; at ``a = 0.05`` (35%
+  caches) 1.9%, 4.2% and 1.8%. The full analytic gradient (``"analytic"``, Eq. 9) and its autodiff check
+  (``"autodiff"``) stay available and agree to 1e-8 (tests); ``"none"`` is Ward's plain weighted mean.
+- **What limits the error.** The hierarchical image is itself noisy at the pixel scale (1.8% relative RMS against a
+  4x denser sample set at 256 x 256): its near field follows the sample positions. The cached image interpolates
+  smooth values between caches, so its distance to the hierarchical image cannot fall below that noise until nearly
+  every point is a cache; ``benchmarks/render_cache.py`` also reports both against the dense reference.
 - **The split-disk constant** ``C(R) = 2 alpha' / (pi R) sum_z (e^{-sigma_tr z} - z e^{-sigma_tr R_z} / R_z)``
   (Eq. 11) is ``4 / (pi R)`` times the disc integral of the dipole (:func:`jaxsss.render.radiance.disc_integral`),
   evaluated stably; the channel with the largest ``C / Rd`` decides.
@@ -58,6 +64,7 @@ from jaxsss.render.radiance import F_dt_external
 
 __all__ = [
     "DISK_RADIUS_IN_LD",
+    "GRADIENTS",
     "NORMAL_COS",
     "CachePlacement",
     "CachedPrepared",
@@ -65,6 +72,9 @@ __all__ = [
     "split_disk_constant",
 ]
 
+GRADIENTS = ("far", "analytic", "autodiff", "none")
+"""The ``grad S`` used in Eq. 10: the far-field part of the analytic gradient (default), the full analytic gradient
+(Eq. 9), the full gradient by autodiff, or none (plain weighted mean). See the module docstring, "Which gradient"."""
 DISK_RADIUS_IN_LD = 1.0
 """The split disk's radius ``R`` in diffuse mean free paths ``l_d`` (smallest over channels)."""
 NORMAL_COS = 0.9
@@ -206,15 +216,19 @@ class CachedPrepared(eqx.Module):
     pair_cache: jax.Array  # (P,) int32
     pair_weight: jax.Array  # (P,)
     pair_offset: jax.Array  # (P, 3) p - p_k, mm
-    gradient: str = eqx.field(static=True)  # "analytic" or "autodiff"
+    gradient: str = eqx.field(static=True)  # one of GRADIENTS
 
     def cache_values(self, medium: Medium):
         """``(S, grad S)`` at the caches: ``(K, C)`` and ``(K, 3, C)``."""
         s = self.cache.exitance(medium)
-        if self.gradient == "analytic":
+        if self.gradient == "far":
+            g = self.cache.exitance_gradient(medium, near=False)
+        elif self.gradient == "analytic":
             g = self.cache.exitance_gradient(medium)
-        else:
+        elif self.gradient == "autodiff":
             g = self.cache.exitance_gradient_autodiff(medium)
+        else:
+            g = jnp.zeros(s.shape[:1] + (3,) + s.shape[1:], s.dtype)
         return s, g
 
     def exitance(self, medium: Medium):
@@ -244,21 +258,47 @@ def _cache_values(prepared: CachedPrepared, medium: Medium):
     return prepared.cache_values(medium)
 
 
-def prepare_cached(scene, error_bound: float, *, eps: float | None = None, resolution=None, one_pass: bool = False,
-                   gradient: str = "analytic", progress: bool = False, plan=None, pixel_mask=None):
-    """Passes 1 and 2 of the cached method (geometry, caches, interpolation pairs).
+SILHOUETTE_COS = 0.3
+"""For the plan's breakdown: a cache is "on a silhouette" where ``n . v < SILHOUETTE_COS`` (about 73 degrees)."""
+VARYING_SPREAD = 0.1
+"""For the plan's breakdown: a cache is "where the light varies" (shadow edges, grazing light) when ``V / E`` exceeds
+this."""
 
-    Returns:
-        ``(cached, plan, info, placement)``.
-    """
+
+class _CacheGeometry(NamedTuple):
+    """Passes 1 and 2 of the cached method in NumPy: everything but the material-dependent sums."""
+
+    plan: Any
+    samples: Any
+    tree: Any
+    shading: Any
+    placement: CachePlacement
+    timings: dict
+
+
+def _transmitted_irradiance(samples, medium: Medium) -> np.ndarray:
+    """``(N,)`` the samples' transmitted irradiance (channel mean, W/mm^2) at the scene's eta: what the split disk
+    sees."""
+    eta = float(np.asarray(medium.eta))
+    f_t = 1.0 - np.asarray(fresnel_reflectance(eta, np.clip(samples.light.cos, 0.0, 1.0)))
+    e_t = (f_t[..., None] * samples.light.irradiance).sum(axis=1).mean(axis=-1)
+    if samples.indirect is not None:
+        e_t = e_t + float(np.asarray(F_dt_external(eta, medium.fresnel))) * samples.indirect.mean(axis=-1)
+    if samples.texture is not None:
+        e_t = e_t * samples.texture.mean(axis=-1)
+    return e_t
+
+
+def _cache_geometry(scene, error_bound: float, *, eps=None, resolution=None, one_pass=False, plan=None,
+                    pixel_mask=None, cutoff=True, share_channels=True) -> _CacheGeometry:
     from jaxsss.render import renderer as rr
     from jaxsss.render.plan import make_plan
 
-    if gradient not in ("analytic", "autodiff"):
-        raise ValueError(f"prepare_cached(gradient={gradient!r}) is not one of 'analytic', 'autodiff'")
+    if not error_bound > 0:
+        raise ValueError(f"prepare_cached(error_bound={error_bound}) is outside the allowed range (0, inf)")
     timings: dict[str, float] = {}
     t0 = time.perf_counter()
-    plan = plan or make_plan(scene, method="hierarchical", eps=eps)
+    plan = plan or make_plan(scene, method="hierarchical", eps=eps, cutoff=cutoff, share_channels=share_channels)
     if plan.method != "hierarchical":
         plan = plan._replace(method="hierarchical")
     timings["plan"] = time.perf_counter() - t0
@@ -268,29 +308,79 @@ def prepare_cached(scene, error_bound: float, *, eps: float | None = None, resol
     t0 = time.perf_counter()
     shading = rr._shading_points(scene, geometry, plan, resolution, pixel_mask, samples.light.irradiance.shape[-1])
     timings["camera_rays"] = time.perf_counter() - t0
-
-    # Pass 2: cache placement (transmitted irradiance of the samples at the scene's eta, channel mean).
+    # Pass 2: cache placement.
     t0 = time.perf_counter()
-    medium = scene.material.medium
-    eta = float(np.asarray(medium.eta))
-    f_t = 1.0 - np.asarray(fresnel_reflectance(eta, np.clip(samples.light.cos, 0.0, 1.0)))
-    e_t = (f_t[..., None] * samples.light.irradiance).sum(axis=1).mean(axis=-1)
-    if samples.indirect is not None:
-        e_t = e_t + float(np.asarray(F_dt_external(eta, medium.fresnel))) * samples.indirect.mean(axis=-1)
-    if samples.texture is not None:
-        e_t = e_t * samples.texture.mean(axis=-1)
     placement = place_caches(shading.pos, shading.normal, shading.pixel, shading.shape[1], samples.positions,
-                             samples.normals, e_t, medium, error_bound, one_pass=one_pass)
+                             samples.normals, _transmitted_irradiance(samples, scene.material.medium),
+                             scene.material.medium, error_bound, one_pass=one_pass)
     timings["cache_placement"] = time.perf_counter() - t0
+    return _CacheGeometry(plan, samples, tree, shading, placement, timings)
+
+
+def cache_plan_item(placement: CachePlacement, normal: np.ndarray, to_eye: np.ndarray, error_bound: float):
+    """The scene plan's line for the cached method: how many caches, and where they go (silhouettes, varying light,
+    near-uniform light), with the reason."""
+    from jaxsss.render.plan import PlanItem
+
+    k, q = len(placement.cache_point), len(normal)
+    cos_v = np.einsum("ij,ij->i", normal[placement.cache_point], to_eye[placement.cache_point])
+    silhouette = cos_v < SILHOUETTE_COS
+    varying = ~silhouette & (placement.spread > VARYING_SPREAD)
+    uniform = ~silhouette & ~varying
+    capped = uniform & (placement.radius >= placement.disk_radius * (1 - 1e-12))
+    why = (f"{k} caches for {q} visible points (cache ratio {k / max(q, 1):.2%}) at a = {error_bound:g}: "
+           f"{silhouette.mean():.0%} on silhouettes (n.v < {SILHOUETTE_COS:g}: the surface turns away within a "
+           f"pixel), {varying.mean():.0%} where the light varies (V/E > {VARYING_SPREAD:g}: shadow edges, grazing "
+           f"light), {uniform.mean():.0%} under near-uniform light ({capped.mean():.0%} with the largest domain, "
+           f"R = {placement.disk_radius:.3g} mm)") if k else "no visible points"
+    return PlanItem("irradiance caches", True, why)
+
+
+def explain_cached(scene, error_bound: float, *, eps: float | None = None, resolution=None, one_pass: bool = False):
+    """The scene plan for the cached method with its expected cache ratio.
+
+    The ratio comes from the actual cache placement (passes 1 and 2's geometry: the irradiance samples, the camera
+    rays and the scanline placement, about a second at 512 x 512), which is exact and cheaper than any model of it:
+    what decides it (silhouettes, shadow edges, the material's ``l_d``) is only known after the camera rays."""
+    geo = _cache_geometry(scene, error_bound, eps=eps, resolution=resolution, one_pass=one_pass)
+    item = cache_plan_item(geo.placement, geo.shading.normal, geo.shading.to_eye, error_bound)
+    plan = geo.plan._replace(method="cached", items=geo.plan.items + (item,))
+    return plan, geo.placement
+
+
+def prepare_cached(scene, error_bound: float, *, eps: float | None = None, resolution=None, one_pass: bool = False,
+                   gradient: str = "far", progress: bool = False, plan=None, pixel_mask=None, cutoff: bool = True,
+                   share_channels: bool = True):
+    """Passes 1 and 2 of the cached method (geometry, caches, interpolation pairs).
+
+    Args:
+        scene: a :class:`~jaxsss.render.Scene`.
+        error_bound: ``a`` (> 0), the relative error bound of the split-disk weights.
+        eps, resolution, plan, pixel_mask, cutoff, share_channels: as for :func:`jaxsss.render.prepare`.
+        one_pass: interpolate from the caches made so far (the paper's one-pass variant).
+        gradient: one of :data:`GRADIENTS`.
+
+    Returns:
+        ``(cached, plan, info, placement)``; ``plan`` ends with the "irradiance caches" item.
+    """
+    from jaxsss.render import renderer as rr
+
+    if gradient not in GRADIENTS:
+        raise ValueError(f"prepare_cached(gradient={gradient!r}) is not one of {', '.join(map(repr, GRADIENTS))}")
+    geo = _cache_geometry(scene, error_bound, eps=eps, resolution=resolution, one_pass=one_pass, plan=plan,
+                          pixel_mask=pixel_mask, cutoff=cutoff, share_channels=share_channels)
+    samples, tree, shading, placement, timings = geo.samples, geo.tree, geo.shading, geo.placement, geo.timings
     t0 = time.perf_counter()
     cache_shading = shading.subset(placement.cache_point)
-    pairs = rr._pair_lists(tree, samples, cache_shading.pos, plan, progress=progress, block_pairs=rr.BLOCK_PAIRS)
+    pairs = rr._pair_lists(tree, samples, cache_shading.pos, geo.plan, progress=progress, block_pairs=rr.BLOCK_PAIRS)
     timings["interactions"] = time.perf_counter() - t0
-    cache = rr._assemble(scene, plan, samples, tree, cache_shading, pairs)
-    points = rr._assemble(scene, plan, samples, tree, shading, None)
+    cache = rr._assemble(scene, geo.plan, samples, tree, cache_shading, pairs)
+    points = rr._assemble(scene, geo.plan, samples, tree, shading, None)
     offset = shading.pos[placement.pair_point] - shading.pos[placement.cache_point[placement.pair_cache]]
     cached = CachedPrepared(cache, points, jnp.asarray(placement.pair_point), jnp.asarray(placement.pair_cache),
                             jnp.asarray(placement.pair_weight), jnp.asarray(offset), gradient)
+    item = cache_plan_item(placement, shading.normal, shading.to_eye, error_bound)
+    plan = geo.plan._replace(method="cached", items=geo.plan.items + (item,))
     n_points = len(shading.pos)
     per_point_err = np.full(n_points, np.inf)
     np.minimum.at(per_point_err, placement.pair_point, placement.pair_error)
@@ -317,7 +407,7 @@ def prepare_cached(scene, error_bound: float, *, eps: float | None = None, resol
 
 
 def render_cached(scene, error_bound: float, *, eps: float | None = None, resolution=None, one_pass: bool = False,
-                  gradient: str = "analytic", progress: bool = False):
+                  gradient: str = "far", progress: bool = False):
     """Render with the cached method: :func:`prepare_cached`, then ``S`` and ``grad S`` at the caches and the
     interpolated image (compilation timed apart). Returns a :class:`jaxsss.render.RenderResult`."""
     from jaxsss.render.renderer import RenderResult, render_report

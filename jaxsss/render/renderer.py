@@ -105,16 +105,20 @@ class Prepared(eqx.Module):
                                  shared_channel=self.shared_channel)
         return far + self.exitance_near(medium, flux)
 
-    def exitance_gradient(self, medium: Medium):
+    def exitance_gradient(self, medium: Medium, *, near: bool = True):
         """Analytic gradient of ``M_o`` with respect to the shaded point's position, ``(Q, 3, C)`` W/mm^3 (caching
-        paper Eq. 9 through the same interaction list; hierarchical method only)."""
+        paper Eq. 9 through the same interaction list; hierarchical method only).
+
+        ``near=False`` leaves out the near-field disc term (within ``rho0`` of the point): the far-field part alone,
+        which the cached method interpolates with (:mod:`jaxsss.render.cache`, "Which gradient")."""
         flux = self.sample_flux(medium)
         ent_flux = rad.entity_flux(flux, self.ent_start, self.ent_stop)
         far = rad.exitance_gradient_pairs(medium, self.query_pos, self.ent_pos, ent_flux, self.pair_query,
                                           self.pair_entity)
-        near = rad.exitance_near_gradient(medium, self.query_pos, self.sample_pos, self.areas, flux, self.near_query,
-                                          self.near_sample, self.rho0)
-        return far + near
+        if not near:
+            return far
+        return far + rad.exitance_near_gradient(medium, self.query_pos, self.sample_pos, self.areas, flux,
+                                                self.near_query, self.near_sample, self.rho0)
 
     def exitance_gradient_autodiff(self, medium: Medium):
         """The same gradient by forward-mode autodiff of :meth:`exitance` in the query positions (three JVPs: each

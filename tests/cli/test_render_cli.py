@@ -124,3 +124,11 @@ def test_cached_method_with_debug_images(capsys, tmp_path, small_scene):
     assert "caches (" in stdout
     code, _, err = run_cli(capsys, "render", small_scene, "--method", "cached", "--cache-error", 0)
     assert code == 2 and "--cache-error" in err
+
+
+def test_cached_explain_reports_the_cache_ratio(capsys, small_scene):
+    code, stdout, err = run_cli(capsys, "render", small_scene, "--method", "cached", "--cache-error", 0.5,
+                                "--explain", "--resolution", 12, 12)
+    assert code == 0, err
+    line = next(x for x in stdout.splitlines() if "irradiance caches" in x)
+    assert "cache ratio" in line and "silhouettes" in line and "where the light varies" in line

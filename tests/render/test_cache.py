@@ -1,7 +1,10 @@
 """Irradiance caching with gradients (jaxsss.render.cache): analytic against autodiff gradients, exact values at the
-caches, convergence to the hierarchical image as a -> 0, both variants, and gradients in the material."""
+caches, convergence to the hierarchical image as a -> 0, both variants, gradients in the material, the gradient
+modes, where caches go, the plan's cache ratio and fitting through the cached image."""
 
 from __future__ import annotations
+
+import dataclasses
 
 import equinox as eqx
 import jax.numpy as jnp
@@ -11,7 +14,14 @@ import pytest
 import jaxsss
 from jaxsss.render import prepare
 from jaxsss.render import radiance as rad
-from jaxsss.render.cache import prepare_cached, render_cached, split_disk_constant
+from jaxsss.render.cache import (
+    GRADIENTS,
+    explain_cached,
+    place_caches,
+    prepare_cached,
+    render_cached,
+    split_disk_constant,
+)
 from tests.gradcheck import assert_grad_matches_fd
 from tests.render.test_renderer import _scene
 
@@ -88,3 +98,79 @@ def test_split_disk_constant_and_bad_bound(sphere):
     assert c > 0 and np.isfinite(c)
     with pytest.raises(ValueError, match="error_bound"):
         prepare_cached(sphere, 0.0, resolution=(4, 4))
+
+
+def test_gradient_modes(sphere):
+    m = sphere.material.medium
+    cached, _, info, _ = prepare_cached(sphere, 0.3, resolution=(8, 8))
+    assert info["gradient"] == "far"  # the default
+    values = {mode: [np.asarray(v) for v in dataclasses.replace(cached, gradient=mode).cache_values(m)]
+              for mode in GRADIENTS}
+    s, full = values["analytic"]
+    far = np.asarray(cached.cache.exitance_gradient(m, near=False))
+    np.testing.assert_allclose(values["far"][1], far, rtol=1e-12)
+    np.testing.assert_allclose(values["autodiff"][1], full, rtol=1e-8, atol=1e-8 * np.abs(full).max())
+    assert not np.allclose(far, full)  # the near-field term is there and is left out
+    assert np.all(values["none"][1] == 0.0)
+    for mode in GRADIENTS:
+        np.testing.assert_array_equal(values[mode][0], s)  # S itself never depends on the gradient mode
+    with pytest.raises(ValueError, match="gradient='exact'"):
+        prepare_cached(sphere, 0.3, resolution=(4, 4), gradient="exact")
+
+
+def _plane(n=60, spacing=0.05):
+    """A flat grid of visible points and a denser grid of irradiance samples on z = 0 (mm)."""
+    g = (np.arange(n) - n / 2) * spacing
+    xx, yy = np.meshgrid(g, g)
+    pts = np.stack([xx.ravel(), yy.ravel(), np.zeros(n * n)], axis=1)
+    normals = np.tile([0.0, 0.0, 1.0], (n * n, 1))
+    pixel = np.arange(n * n)
+    return pts, normals, pixel, n
+
+
+def test_caches_gather_at_shadow_edges():
+    medium = jaxsss.Medium(0.05, 5.0, 1.3)  # l_d about 1.2 mm
+    pts, normals, pixel, width = _plane()
+    uniform = place_caches(pts, normals, pixel, width, pts, normals, np.ones(len(pts)), medium, 0.3)
+    shadowed = np.where(pts[:, 0] < 0.0, 1.0, 0.0) + 1e-3  # a shadow edge along x = 0
+    edge = place_caches(pts, normals, pixel, width, pts, normals, shadowed, medium, 0.3)
+    assert len(edge.cache_point) > 3 * len(uniform.cache_point)
+    # Under uniform light every domain reaches the disk radius (the largest allowed).
+    np.testing.assert_allclose(uniform.radius, uniform.disk_radius)
+    # With the edge, the caches crowd near it: the density of caches within l_d of x = 0 is higher than away.
+    x = np.abs(pts[edge.cache_point, 0])
+    near = x < uniform.disk_radius
+    assert near.mean() > 0.5, near.mean()
+
+
+def test_plan_reports_the_cache_ratio(sphere):
+    plan, placement = explain_cached(sphere, 0.3, resolution=(16, 16))
+    item = plan.items[-1]
+    assert plan.method == "cached" and item.name == "irradiance caches" and item.included
+    assert f"{len(placement.cache_point)} caches" in item.reason and "cache ratio" in item.reason
+    cached, plan2, info, _ = prepare_cached(sphere, 0.3, resolution=(16, 16))
+    assert plan2.items[-1].reason == item.reason and info["n_caches"] == len(placement.cache_point)
+
+
+def test_fit_image_with_the_cached_method(sphere):
+    from fitting import fit_image
+
+    truth = sphere.material.medium
+    cached = prepare_cached(sphere, 0.3, cutoff=False, share_channels=False)[0]
+    target = np.asarray(cached.image(truth))
+    fit = fit_image(sphere, target, method="cached", cache_error=0.3, max_pixels=300)
+    assert fit.converged, fit.message
+    np.testing.assert_allclose(fit.sigma_a, truth.sigma_a, rtol=1e-3)
+    np.testing.assert_allclose(fit.sigma_s_prime, truth.sigma_s_prime, rtol=1e-3)
+
+
+@pytest.mark.parametrize("name", ["marble_teapot", "skin_sphere", "ketchup_torus", "milk_box_on_floor"])
+def test_example_scenes_render_with_the_cached_method(name):
+    from pathlib import Path
+
+    from jaxsss.render import load_scene
+
+    scene = load_scene(Path(__file__).resolve().parents[2] / "examples" / f"{name}.toml")
+    result = render_cached(scene, 0.3, resolution=(12, 12))
+    assert result.image.shape == (12, 12, 3) and np.isfinite(result.image).all() and result.image.max() > 0
+    assert 0 < result.report["n_caches"] <= result.report["n_shaded_points"]
