@@ -11,11 +11,18 @@ the material is a JAX function of arrays, so ``prepared.image(medium)`` is diffe
 - Rendering: :func:`prepare` (geometry once) -> :class:`Prepared` with ``image(medium)``; :func:`render` (the whole
   job with timings and report) -> :class:`RenderResult`; :func:`write_outputs` (PNG, NPY, EXR, JSON).
 - Irradiance caching with gradients (Keng et al. 2006): :func:`prepare_cached`, :func:`render_cached`
-  (``jaxsss render --method cached``).
+  (``jaxsss render --method cached``), :func:`explain_cached` (the plan with the cache ratio), :data:`GRADIENTS`.
 - Pieces: :func:`build_octree`, :func:`build_interactions`, :mod:`jaxsss.render.radiance`.
 """
 
-from jaxsss.render.cache import CachedPrepared, place_caches, prepare_cached, render_cached
+from jaxsss.render.cache import (
+    GRADIENTS,
+    CachedPrepared,
+    explain_cached,
+    place_caches,
+    prepare_cached,
+    render_cached,
+)
 from jaxsss.render.interactions import (
     Interactions,
     build_interactions,
@@ -50,6 +57,7 @@ __all__ = [
     "BUILTIN_MESHES",
     "CachedPrepared",
     "Camera",
+    "GRADIENTS",
     "Interactions",
     "Light",
     "Material",
@@ -72,6 +80,7 @@ __all__ = [
     "load_scene",
     "make_plan",
     "parse_scene",
+    "explain_cached",
     "place_caches",
     "prepare_cached",
     "prepare",
