@@ -3,10 +3,13 @@
 - :class:`Layer`, :class:`Stack` -- the medium (1/mm, mm, absolute indices; :meth:`Stack.half_space`,
   :meth:`Stack.slab`);
 - :func:`simulate` -- run photons, return an :class:`MCResult` (totals, profiles, histograms, standard errors);
+- :func:`simulate_edge` -- a pencil beam near a right-angled edge (quarter-space), for the quadpole
+  (:mod:`jaxsss.mc.edge`, :class:`EdgeResult`);
 - :func:`white_mc_profile` -- the white ("scaled") Monte Carlo radial profile, transport-accurate and differentiable,
   from the shipped tables (:func:`load_white_table`, :func:`available_white_tables`; :mod:`jaxsss.mc.white`).
 """
 
+from jaxsss.mc.edge import EdgeResult, simulate_edge
 from jaxsss.mc.engine import simulate
 from jaxsss.mc.result import MCResult
 from jaxsss.mc.stack import Layer, Stack
@@ -20,6 +23,7 @@ from jaxsss.mc.white import (
 )
 
 __all__ = [
+    "EdgeResult",
     "Layer",
     "MCResult",
     "Stack",
@@ -27,6 +31,7 @@ __all__ = [
     "available_white_tables",
     "load_white_table",
     "simulate",
+    "simulate_edge",
     "white_mc_medium_profile",
     "white_mc_profile",
     "white_mc_profile_stderr",

@@ -93,7 +93,7 @@ def new_tallies(cfg: KernelConfig) -> dict:
     if cfg.n_r:
         t["profile"] = jnp.zeros((2 * N_ORDER * cfg.n_r, 2), f)  # flat (R/T, order, r bin), moment
     if cfg.n_x:
-        t["xy"] = jnp.zeros((cfg.n_x * cfg.n_y, 2), f)
+        t["xy"] = jnp.zeros((N_ORDER * cfg.n_x * cfg.n_y, 2), f)  # flat (order, x bin, y bin), moment
     if cfg.n_path:
         t["r_path"] = jnp.zeros((cfg.n_r * cfg.n_path, 2), f)
     return t
@@ -314,7 +314,9 @@ def batch_kernel(cfg: KernelConfig, params: dict, key, budget):
         if cfg.n_x:
             ix, in_x = _bin(params["x_edges"], x)
             iy, in_y = _bin(params["y_edges"], y)
-            idx = jnp.where(exit_top & in_x & in_y, ix * cfg.n_y + iy, cfg.n_x * cfg.n_y)
+            # Split by scattering order like the radial profile (photon-diffusion tests need the multiple part).
+            n_xy = cfg.n_x * cfg.n_y
+            idx = jnp.where(exit_top & in_x & in_y, cls * n_xy + ix * cfg.n_y + iy, N_ORDER * n_xy)
             tal["xy"] = tal["xy"].at[idx].add(moments, mode="drop")
 
         new = {

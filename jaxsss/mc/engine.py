@@ -254,9 +254,12 @@ def _assemble(t, N, R_specular, cfg, r_edges, x_edges, y_edges, path_edges, **me
                   T_r_order=by_order[1], T_r_order_stderr=by_order_err[1])
     if cfg.n_x:
         cell = np.outer(np.diff(x_edges), np.diff(y_edges))
-        xy = t["xy"].reshape(cfg.n_x, cfg.n_y, 2)
+        xy_order = t["xy"].reshape(N_ORDER, cfg.n_x, cfg.n_y, 2)
+        xy = xy_order.sum(axis=0)  # each photon exits once: the orders' squares add up to the per-photon squares
         kw.update(x_edges=x_edges, y_edges=y_edges, R_xy=xy[..., 0] / N / cell,
-                  R_xy_stderr=stderr_of_mean(xy[..., 0], xy[..., 1], N) / cell)
+                  R_xy_stderr=stderr_of_mean(xy[..., 0], xy[..., 1], N) / cell,
+                  R_xy_order=xy_order[..., 0] / N / cell,
+                  R_xy_order_stderr=stderr_of_mean(xy_order[..., 0], xy_order[..., 1], N) / cell)
     if cfg.n_path:
         area = np.pi * np.diff(r_edges**2)[:, None]
         rp = t["r_path"].reshape(cfg.n_r, cfg.n_path, 2)

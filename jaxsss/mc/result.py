@@ -52,7 +52,8 @@ class MCResult:
         r_edges ``(M + 1,)`` mm; R_r, T_r ``(M,)`` and their ``_stderr``, per incident photon per mm^2; R_r_order,
             T_r_order ``(3, M)`` by scattering order (0, 1, >= 2), with ``_stderr``.
         x_edges ``(X + 1,)``, y_edges ``(Y + 1,)`` mm; R_xy ``(X, Y)`` (diffuse reflectance per mm^2; x along the
-            oblique beam's in-plane direction) with ``R_xy_stderr``.
+            oblique beam's in-plane direction) with ``R_xy_stderr``; R_xy_order ``(3, X, Y)`` by scattering order
+            (0, 1, >= 2), with ``R_xy_order_stderr``.
         pathlength_edges ``(P + 1,)`` mm; R_r_path ``(M, P)``: diffuse reflectance per mm^2 of the annulus, for
             photons whose total pathlength inside the medium falls in each bin (not divided by the bin width), with
             ``R_r_path_stderr``. Photons outside the pathlength range are left out, so ``R_r_path.sum(1) <= R_r``.
@@ -102,6 +103,8 @@ class MCResult:
     y_edges: np.ndarray | None = None
     R_xy: np.ndarray | None = None
     R_xy_stderr: np.ndarray | None = None
+    R_xy_order: np.ndarray | None = None
+    R_xy_order_stderr: np.ndarray | None = None
     pathlength_edges: np.ndarray | None = None
     R_r_path: np.ndarray | None = None
     R_r_path_stderr: np.ndarray | None = None
