@@ -165,6 +165,10 @@ def make_plan(scene, *, method: str | None = None, eps: float | None = None, cut
                               f"WARNING: the object is only {ratio:.3g} l_d thick; a second boundary matters but this "
                               "renderer evaluates the dipole, which overestimates the reflectance of thin parts"))
 
+    layers = getattr(scene, "layers", None)
+    items.append(PlanItem("ray marching", False,
+                          "no [layers] table: no subsurface texture layers to march" if layers is None else
+                          "the scene's [layers] are marched by --method layered only"))
     if scene.material.texture is not None:
         items.append(PlanItem("texture", True, "the texture scales the irradiance samples (the paper's face example)"))
     if scene.occluders:

@@ -70,6 +70,9 @@ Schema (units: mm, 1/mm, degrees; "3 values" means ``[x, y, z]`` or ``[r, g, b]`
 
     environment = "sky.hdr"   # optional top-level key: an HDR environment map (checked to exist; not used yet)
 
+    [layers]                  # optional: subsurface texture layers for `--method layered` (schema in
+                              # jaxsss.layered.config; stored as Scene.layers, a LayerSpec)
+
 The dataclasses are frozen with ``eq=False`` (they hold arrays and meshes, so comparison is by identity); their
 arrays are made read-only.
 """
@@ -80,6 +83,7 @@ import dataclasses
 import math
 import os
 import tomllib
+from typing import Any
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -238,6 +242,7 @@ class Scene:
     render: RenderSettings = field(default_factory=RenderSettings)
     output: Output = field(default_factory=Output)
     environment: str | None = None
+    layers: Any = None  # jaxsss.layered.LayerSpec from a [layers] table (the layered method), else None
 
 
 # --- value checks -----------------------------------------------------------------------------------------------
@@ -583,7 +588,7 @@ def _array_of_tables(ctx: _Ctx, data: dict, name: str) -> list:
     return value
 
 
-_TOP_KEYS = ("mesh", "material", "light", "camera", "occluder", "render", "output", "environment")
+_TOP_KEYS = ("mesh", "material", "light", "camera", "occluder", "render", "output", "environment", "layers")
 
 
 def parse_scene(data: dict, *, path: str = "<scene>", base_dir=None) -> Scene:
@@ -617,6 +622,11 @@ def parse_scene(data: dict, *, path: str = "<scene>", base_dir=None) -> Scene:
     render = _parse_render(ctx, ctx.table(data, "render", "render")) if "render" in data else RenderSettings()
     output = _parse_output(ctx, ctx.table(data, "output", "output")) if "output" in data else Output()
     environment = str(ctx.file(data["environment"], "environment")) if "environment" in data else None
+    layers = None
+    if "layers" in data:  # subsurface texture layers (jaxsss.layered, which builds on this module)
+        from jaxsss.layered.config import parse_layers
+
+        layers = parse_layers(data["layers"], path=str(path), base_dir=base_dir)
     return Scene(
         path=None if path == "<scene>" else str(path),
         mesh=mesh,
@@ -628,6 +638,7 @@ def parse_scene(data: dict, *, path: str = "<scene>", base_dir=None) -> Scene:
         render=render,
         output=output,
         environment=environment,
+        layers=layers,
     )
 
 

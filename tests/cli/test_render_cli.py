@@ -132,3 +132,47 @@ def test_cached_explain_reports_the_cache_ratio(capsys, small_scene):
     assert code == 0, err
     line = next(x for x in stdout.splitlines() if "irradiance caches" in x)
     assert "cache ratio" in line and "silhouettes" in line and "where the light varies" in line
+
+
+def _layered_scene(tmp_path, diffusion: str) -> Path:
+    text = (EXAMPLES / "layered_veins.toml").read_text()
+    text = text.replace("[layers]\n", f'[layers]\ndiffusion = "{diffusion}"\n', 1).replace("size = 256", "size = 64")
+    path = tmp_path / f"layered_{diffusion}.toml"
+    path.write_text(text)
+    return path
+
+
+def test_layered_method_explain_and_render(capsys, tmp_path):
+    scene = _layered_scene(tmp_path, "auto")
+    code, stdout, err = run_cli(capsys, "render", scene, "--method", "layered", "--explain")
+    assert code == 0, err
+    assert "+ ray marching" in stdout and "- outer-layer diffusion" in stdout and "reduced mean free paths" in stdout
+    out = tmp_path / "l.png"
+    code, stdout, err = run_cli(capsys, "render", scene, "--method", "layered", "--samples", 8, "--resolution", 24,
+                                18, "-o", out, "--no-exr", "--json", tmp_path / "l.json")
+    assert code == 0, err
+    assert out.read_bytes()[:8] == PNG_SIGNATURE
+    report = json.loads((tmp_path / "l.json").read_text())
+    assert report["method"] == "layered" and report["samples"] == 8 and "diffusion" not in report
+    assert [i["name"] for i in report["plan"]] == ["ray marching", "outer-layer diffusion"]
+
+
+def test_layered_method_adds_the_forced_diffusion_term(capsys, tmp_path):
+    off, on = _layered_scene(tmp_path, "off"), _layered_scene(tmp_path, "on")
+    images = {}
+    for path in (off, on):
+        out = tmp_path / f"{path.stem}.png"
+        code, _, err = run_cli(capsys, "render", path, "--method", "layered", "--samples", 4, "--resolution", 16, 12,
+                               "-o", out, "--no-exr", "--quiet")
+        assert code == 0, err
+        images[path.stem] = np.load(out.with_suffix(".npy"))
+    off_img, on_img = images["layered_off"], images["layered_on"]
+    obj = np.any(off_img != np.array([0.003, 0.003, 0.004]), axis=-1)  # not the scene's background
+    assert obj.sum() > 20
+    assert np.all(on_img[obj] >= off_img[obj]) and on_img[obj].sum() > 1.5 * off_img[obj].sum()  # only adds light
+    np.testing.assert_array_equal(on_img[~obj], off_img[~obj])
+
+
+def test_layered_method_needs_a_layers_table(capsys, small_scene):
+    code, _, err = run_cli(capsys, "render", small_scene, "--method", "layered")
+    assert code == 2 and "[layers]" in err and err.count("\n") == 1
