@@ -128,6 +128,7 @@ def _run_layered(args, scene) -> int:
     from jaxsss.layered import render_layered
     from jaxsss.layered.plan import layered_plan
     from jaxsss.render import render, write_outputs
+    from jaxsss.render.plan import explain_items
 
     if scene.layers is None:
         raise CLIError(f"{args.scene}: --method layered needs a [layers] table (see examples/layered_veins.toml)")
@@ -136,9 +137,7 @@ def _run_layered(args, scene) -> int:
     diffusion, items = layered_plan(scene, scene.layers, samples=args.samples)
     if args.explain:
         print(f"scene plan for {args.scene} (layered):")
-        width = max(len(i.name) for i in items)
-        for i in items:
-            print(f"{'+' if i.included else '-'} {i.name:<{width}}  {i.reason}")
+        print(explain_items(items))
         if args.json:
             args.json.parent.mkdir(parents=True, exist_ok=True)
             args.json.write_text(json.dumps({"plan": [i._asdict() for i in items]}, indent=2) + "\n")

@@ -25,7 +25,7 @@ import numpy as np
 
 from jaxsss.render.samples import sample_count
 
-__all__ = ["THICK_IN_LD", "PlanItem", "ScenePlan", "make_plan"]
+__all__ = ["THICK_IN_LD", "PlanItem", "ScenePlan", "explain_items", "make_plan"]
 
 THICK_IN_LD = 10.0
 """An object at least this many diffuse mean free paths thick is treated as semi-infinite (no multipole)."""
@@ -37,6 +37,12 @@ class PlanItem(NamedTuple):
     name: str
     included: bool
     reason: str
+
+
+def explain_items(items) -> str:
+    """Plan items as text, one line per decision: ``+`` kept / ``-`` left out, the name and the reason."""
+    width = max(len(i.name) for i in items)
+    return "\n".join(f"{'+' if i.included else '-'} {i.name:<{width}}  {i.reason}" for i in items)
 
 
 class ScenePlan(NamedTuple):
@@ -55,8 +61,7 @@ class ScenePlan(NamedTuple):
 
     def explain(self) -> str:
         """The plan as text, one line per decision."""
-        width = max(len(i.name) for i in self.items)
-        return "\n".join(f"{'+' if i.included else '-'} {i.name:<{width}}  {i.reason}" for i in self.items)
+        return explain_items(self.items)
 
     def to_dict(self) -> dict[str, Any]:
         out = {k: getattr(self, k) for k in self._fields if k != "items"}
