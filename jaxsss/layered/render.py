@@ -265,14 +265,15 @@ def render_layered(scene, spec: LayerSpec, *, samples: int | None = None, resolu
     t_all = time.perf_counter()
     prepared, _, info = prepare_layered(scene, spec, resolution=resolution, samples=samples)
     stack = stack if stack is not None else spec.stack
+    # Compile apart (ahead of time), then one timed run: the frame is marched once.
     t0 = time.perf_counter()
-    ss = jax.block_until_ready(prepared.single_scattering(stack))
-    first = time.perf_counter() - t0
+    march = _radiance.lower(prepared, stack, prepared.n_samples).compile()
+    compile_s = time.perf_counter() - t0
     t0 = time.perf_counter()
-    ss = jax.block_until_ready(prepared.single_scattering(stack))
+    ss = jax.block_until_ready(_to_image(prepared, march(prepared, stack, prepared.n_samples), with_constant=False))
     march_s = time.perf_counter() - t0
     image = np.asarray(ss) + np.asarray(prepared.constant).reshape(ss.shape)
-    timings = {**info.pop("timings"), "march_first_call_with_compile": first, "march": march_s}
+    timings = {**info.pop("timings"), "march_compile": compile_s, "march": march_s}
     info.pop("geometry")
     report = {
         "method": "layered",
