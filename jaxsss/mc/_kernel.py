@@ -99,20 +99,21 @@ def new_tallies(cfg: KernelConfig) -> dict:
     return t
 
 
-def _fresnel(cos_i, rel):
+def _fresnel(cos_i, rel, xp=jnp):
     """Unpolarised Fresnel reflectance and refraction cosine for incidence cosine ``cos_i`` onto relative index
     ``rel = n_t / n_i`` (total internal reflection gives ``R = 1``). Same formula as
-    :func:`jaxsss.fresnel.fresnel_reflectance`; also returns ``cos_t``, which the engine needs."""
+    :func:`jaxsss.fresnel.fresnel_reflectance`; also returns ``cos_t``, which the engine needs. ``xp``: the array
+    namespace (``numpy`` for the mesh photon tracer, which runs outside JAX)."""
     sin2_t = (1.0 - cos_i * cos_i) / (rel * rel)
     tir = sin2_t >= 1.0
-    cos_t = jnp.sqrt(jnp.where(tir, 0.0, 1.0 - sin2_t))
-    cos_t = jnp.where(rel == 1.0, cos_i, cos_t)  # exact pass-through at matched interfaces
+    cos_t = xp.sqrt(xp.where(tir, 0.0, 1.0 - sin2_t))
+    cos_t = xp.where(rel == 1.0, cos_i, cos_t)  # exact pass-through at matched interfaces
     r_s = (cos_i - rel * cos_t) / (cos_i + rel * cos_t)
     r_p = (rel * cos_i - cos_t) / (rel * cos_i + cos_t)
     F = 0.5 * (r_s * r_s + r_p * r_p)
-    F = jnp.where(rel == 1.0, 0.0, F)
-    F = jnp.where(cos_i <= 0.0, 1.0, F)  # grazing: nothing crosses (and no 0/0)
-    return jnp.where(tir, 1.0, F), cos_t
+    F = xp.where(rel == 1.0, 0.0, F)
+    F = xp.where(cos_i <= 0.0, 1.0, F)  # grazing: nothing crosses (and no 0/0)
+    return xp.where(tir, 1.0, F), cos_t
 
 
 def _hg_cos(g, u):

@@ -53,6 +53,7 @@ __all__ = [
     "hg_phase",
     "near_weight",
     "near_weight_gradient_factor",
+    "scan_pairs",
     "single_scattering",
     "single_scattering_share",
     "specular_ggx",
@@ -219,19 +220,41 @@ def exitance_pairs(medium: Medium, query_pos, ent_pos, ent_flux, pair_query, pai
     n_q = query_pos.shape[0]
     kernel_medium = _kernel_medium(medium, shared_channel)
 
+    def contrib(q, e):
+        r = _safe_distance(query_pos[q], ent_pos[e])
+        # Hierarchical paper Eq. 13: each entity contributes Phi_v R_d(|x - P_v|).
+        return _dipole_profile(r[:, None], kernel_medium) * ent_flux[e]
+
+    return scan_pairs(contrib, n_q, ent_flux.shape[-1:], ent_flux.dtype, pair_query, pair_entity)
+
+
+def scan_pairs(contrib, n_queries: int, value_shape: tuple, dtype, pair_query, pair_entity):
+    """``sum_{k: q_k = q} contrib(q_k, e_k)`` for every query: an interaction list in ``B`` blocks of ``K`` pairs,
+    summed block by block in a ``lax.scan`` whose body is rematerialised in reverse mode (memory: one block).
+
+    Args:
+        contrib: ``(q, e) -> (K, *value_shape)``, the pairs' values (``q`` already clipped to valid queries).
+        n_queries: ``Q``.
+        value_shape: trailing shape of one pair's value (e.g. ``(C,)`` or ``(3, C)``).
+        dtype: of the result.
+        pair_query, pair_entity: ``(B, K)`` int32; padding pairs have ``pair_query = Q`` (they land in a dropped
+            extra row); query indices ascending within each block.
+
+    Returns:
+        ``(Q, *value_shape)``.
+    """
+
     @jax.checkpoint
     def block(q, e):
-        r = _safe_distance(query_pos[jnp.minimum(q, n_q - 1)], ent_pos[e])
-        # Hierarchical paper Eq. 13: each entity contributes Phi_v R_d(|x - P_v|).
-        contrib = _dipole_profile(r[:, None], kernel_medium) * ent_flux[e]
-        return jax.ops.segment_sum(contrib, q, num_segments=n_q + 1, indices_are_sorted=True)
+        return jax.ops.segment_sum(contrib(jnp.minimum(q, n_queries - 1), e), q, num_segments=n_queries + 1,
+                                   indices_are_sorted=True)
 
     def step(acc, qe):
         return acc + block(*qe), None
 
-    init = jnp.zeros((n_q + 1, ent_flux.shape[-1]), ent_flux.dtype)
+    init = jnp.zeros((n_queries + 1, *value_shape), dtype)
     acc, _ = jax.lax.scan(step, init, (pair_query, pair_entity))
-    return acc[:n_q]
+    return acc[:n_queries]
 
 
 def dipole_gradient_factor(r, medium: Medium):
@@ -270,20 +293,13 @@ def exitance_gradient_pairs(medium: Medium, query_pos, ent_pos, ent_flux, pair_q
     hierarchical interaction list)."""
     n_q = query_pos.shape[0]
 
-    @jax.checkpoint
-    def block(q, e):
-        delta = query_pos[jnp.minimum(q, n_q - 1)] - ent_pos[e]
-        r = _safe_distance(query_pos[jnp.minimum(q, n_q - 1)], ent_pos[e])
+    def contrib(q, e):
+        delta = query_pos[q] - ent_pos[e]
+        r = _safe_distance(query_pos[q], ent_pos[e])
         g = dipole_gradient_factor(r[:, None], medium) * ent_flux[e]  # (K, C)
-        return jax.ops.segment_sum(delta[:, :, None] * g[:, None, :], q, num_segments=n_q + 1,
-                                   indices_are_sorted=True)
+        return delta[:, :, None] * g[:, None, :]
 
-    def step(acc, qe):
-        return acc + block(*qe), None
-
-    init = jnp.zeros((n_q + 1, 3, ent_flux.shape[-1]), ent_flux.dtype)
-    acc, _ = jax.lax.scan(step, init, (pair_query, pair_entity))
-    return acc[:n_q]
+    return scan_pairs(contrib, n_q, (3, ent_flux.shape[-1]), ent_flux.dtype, pair_query, pair_entity)
 
 
 def exitance_near_gradient(medium: Medium, query_pos, sample_pos, sample_area, sample_flux, near_query, near_sample,

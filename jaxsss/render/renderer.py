@@ -29,7 +29,7 @@ from jaxsss.render.plan import ScenePlan, make_plan
 from jaxsss.render.rays import OBJECT_TRANSLUCENT, SceneGeometry
 from jaxsss.render.samples import irradiance_samples
 
-__all__ = ["BLOCK_PAIRS", "Prepared", "RenderResult", "prepare", "render"]
+__all__ = ["BLOCK_PAIRS", "Prepared", "RenderResult", "ShadedPoints", "prepare", "render", "shaded_fields"]
 
 BLOCK_PAIRS = 1 << 16
 """Pairs per block of the hierarchical sum (one ``lax.scan`` step)."""
@@ -41,7 +41,47 @@ pixel noise, 3 gives 1.4-2.4%, 4 gives 0.8-1.4% and 6 gives 0.4-0.7%, at the pri
 a larger neighbourhood (about ``rho_0 / 2``)."""
 
 
-class Prepared(eqx.Module):
+class ShadedPoints(eqx.Module):
+    """The shaded points of an image (camera-ray hits on the translucent object) and the material-free rest of it:
+    what turns an exitance ``(Q, C)`` into the image. Every method's prepared state extends it."""
+
+    query_pos: jax.Array  # (Q, 3)
+    query_normal: jax.Array  # (Q, 3)
+    to_eye: jax.Array  # (Q, 3)
+    query_to_light: jax.Array | None  # (Q, L, 3) (single scattering and specular only)
+    query_irradiance: jax.Array | None  # (Q, L, C)
+    query_pixel: jax.Array  # (Q,) flat pixel index
+    constant: jax.Array  # (H * W, C): background and occluders, already divided by spp
+    shape: tuple = eqx.field(static=True)  # (H, W)
+    spp: int = eqx.field(static=True)
+    single_scattering: bool = eqx.field(static=True)
+    specular_roughness: float | None = eqx.field(static=True)
+
+    @property
+    def n_queries(self) -> int:
+        return self.query_pos.shape[0]
+
+    def radiance_from_exitance(self, medium: Medium, exitance):
+        """Radiance towards the eye at the shaded points, ``(Q, C)`` W/(mm^2 sr): diffusion plus the optional
+        single-scattering and specular terms."""
+        cos_o = jnp.clip(jnp.sum(self.query_normal * self.to_eye, axis=-1), 0.0, 1.0)
+        out = rad.exit_radiance(medium, exitance, cos_o)
+        if self.single_scattering:
+            out = out + rad.single_scattering(medium, self.query_normal, self.to_eye, self.query_to_light,
+                                              self.query_irradiance)
+        if self.specular_roughness is not None:
+            out = out + rad.specular_ggx(medium, self.query_normal, self.to_eye, self.query_to_light,
+                                         self.query_irradiance, self.specular_roughness)
+        return out
+
+    def image_from_radiance(self, radiance):
+        """``(H, W, C)`` linear image: the mean over each pixel's rays plus the constant part."""
+        h, w = self.shape
+        img = jax.ops.segment_sum(radiance / self.spp, self.query_pixel, num_segments=h * w)
+        return (img + self.constant).reshape(h, w, -1)
+
+
+class Prepared(ShadedPoints):
     """Everything an image needs except the material. Arrays are sorted for the sums; see :func:`prepare`.
 
     ``Q`` shaded points (camera-ray hits on the translucent object), ``N`` samples in octree order, ``E`` octree
@@ -59,12 +99,6 @@ class Prepared(eqx.Module):
     ent_pos: jax.Array  # (E, 3)
     ent_start: jax.Array  # (E,)
     ent_stop: jax.Array  # (E,)
-    # Shaded points.
-    query_pos: jax.Array  # (Q, 3)
-    query_normal: jax.Array  # (Q, 3)
-    to_eye: jax.Array  # (Q, 3)
-    query_to_light: jax.Array | None  # (Q, L, 3) (single scattering and specular only)
-    query_irradiance: jax.Array | None  # (Q, L, C)
     # Interaction list in blocks (far field).
     pair_query: jax.Array | None  # (B, K) int32
     pair_entity: jax.Array | None  # (B, K) int32
@@ -72,19 +106,8 @@ class Prepared(eqx.Module):
     near_query: jax.Array | None  # (K2,) int32
     near_sample: jax.Array | None  # (K2,) int32
     rho0: jax.Array  # ()
-    # Image assembly.
-    query_pixel: jax.Array  # (Q,) flat pixel index
-    constant: jax.Array  # (H * W, C): background and occluders, already divided by spp
-    shape: tuple = eqx.field(static=True)  # (H, W)
-    spp: int = eqx.field(static=True)
     method: str = eqx.field(static=True)
-    single_scattering: bool = eqx.field(static=True)
-    specular_roughness: float | None = eqx.field(static=True)
     shared_channel: bool = eqx.field(static=True)
-
-    @property
-    def n_queries(self) -> int:
-        return self.query_pos.shape[0]
 
     def sample_flux(self, medium: Medium):
         """``(N, C)`` flux entering the medium at each sample, W."""
@@ -135,25 +158,6 @@ class Prepared(eqx.Module):
         """The near-field disc part of ``M_o`` (hierarchical method), ``(Q, C)``."""
         return rad.exitance_near(medium, self.query_pos, self.sample_pos, self.areas, flux, self.near_query,
                                  self.near_sample, self.rho0, shared_channel=self.shared_channel)
-
-    def radiance_from_exitance(self, medium: Medium, exitance):
-        """Radiance towards the eye at the shaded points, ``(Q, C)`` W/(mm^2 sr): diffusion plus the optional
-        single-scattering and specular terms."""
-        cos_o = jnp.clip(jnp.sum(self.query_normal * self.to_eye, axis=-1), 0.0, 1.0)
-        out = rad.exit_radiance(medium, exitance, cos_o)
-        if self.single_scattering:
-            out = out + rad.single_scattering(medium, self.query_normal, self.to_eye, self.query_to_light,
-                                              self.query_irradiance)
-        if self.specular_roughness is not None:
-            out = out + rad.specular_ggx(medium, self.query_normal, self.to_eye, self.query_to_light,
-                                         self.query_irradiance, self.specular_roughness)
-        return out
-
-    def image_from_radiance(self, radiance):
-        """``(H, W, C)`` linear image: the mean over each pixel's rays plus the constant part."""
-        h, w = self.shape
-        img = jax.ops.segment_sum(radiance / self.spp, self.query_pixel, num_segments=h * w)
-        return (img + self.constant).reshape(h, w, -1)
 
     def image(self, medium: Medium):
         """The linear radiance image ``(H, W, C)`` as a JAX function of the medium (differentiable; jitted, with
@@ -234,6 +238,18 @@ def _pass1(scene, plan: ScenePlan):
     return geometry, samples, tree, time.perf_counter() - t0
 
 
+def point_shading(points, n_channels: int, owner: str = "prepare") -> _Shading:
+    """Shading state for given surface points instead of the camera's (validation against Monte Carlo): one "pixel"
+    per point, viewed along its normal, nothing else in the image; ``points`` is ``(positions (Q, 3) mm, outward
+    normals (Q, 3))``."""
+    pos, normal = (np.asarray(a, dtype=np.float64) for a in points)
+    if pos.ndim != 2 or pos.shape[1] != 3 or normal.shape != pos.shape:
+        raise ValueError(f"{owner}(points=...) needs two (Q, 3) arrays; got {pos.shape} and {normal.shape}")
+    normal = normal / np.linalg.norm(normal, axis=1, keepdims=True)
+    q = len(pos)
+    return _Shading(pos, normal, normal, np.arange(q), None, np.zeros((q, n_channels)), (1, q), 1, q)
+
+
 def _shading_points(scene, geometry, plan: ScenePlan, resolution, pixel_mask, n_channels: int) -> _Shading:
     """Camera rays, their hits, the occluders' and background's constant image, and lighting at the shaded points."""
     rays = camera_rays(scene.camera, resolution, seed=scene.render.seed)
@@ -279,14 +295,32 @@ def _pair_lists(tree, samples, q_pos, plan: ScenePlan, *, progress: bool, block_
     """Interaction lists for the points ``q_pos``: far pairs in blocks, near pairs, and counts."""
     rho0 = near_radius(samples)
     if plan.method == "direct" or len(q_pos) == 0:
-        return dict(pq=None, pe=None, near_q=None, near_s=None, rho0=rho0, counts=np.full(len(q_pos), samples.n),
-                    nodes_inside=0)
+        return {"pq": None, "pe": None, "near_q": None, "near_s": None, "rho0": rho0, "counts": np.full(len(q_pos), samples.n),
+                    "nodes_inside": 0}
     inter = build_interactions(tree, q_pos, plan.eps, r_cut=plan.r_cut, progress=progress)
     counts = inter.counts()
     far, near_q, near_s, nodes_inside = _split_near(inter, q_pos, tree, samples.positions[tree.order], rho0)
     pq = jnp.asarray(_blocks(inter.query[far].astype(np.int32), len(q_pos), block_pairs))
     pe = jnp.asarray(_blocks(inter.entity[far].astype(np.int32), 0, block_pairs))
-    return dict(pq=pq, pe=pe, near_q=near_q, near_s=near_s, rho0=rho0, counts=counts, nodes_inside=nodes_inside)
+    return {"pq": pq, "pe": pe, "near_q": near_q, "near_s": near_s, "rho0": rho0, "counts": counts, "nodes_inside": nodes_inside}
+
+
+def shaded_fields(scene, plan: ScenePlan, shading: _Shading) -> dict[str, Any]:
+    """The :class:`ShadedPoints` fields of ``shading`` as JAX arrays (keyword arguments for any method's state)."""
+    light = shading.light
+    return {
+        "query_pos": jnp.asarray(shading.pos),
+        "query_normal": jnp.asarray(shading.normal),
+        "to_eye": jnp.asarray(shading.to_eye),
+        "query_to_light": None if light is None else jnp.asarray(light.to_light),
+        "query_irradiance": None if light is None else jnp.asarray(light.irradiance),
+        "query_pixel": jnp.asarray(shading.pixel),
+        "constant": jnp.asarray(shading.constant),
+        "shape": shading.shape,
+        "spp": shading.spp,
+        "single_scattering": plan.single_scattering,
+        "specular_roughness": scene.material.specular_roughness if plan.specular else None,
+    }
 
 
 def _assemble(scene, plan: ScenePlan, samples, tree, shading: _Shading, pairs: dict | None) -> Prepared:
@@ -294,9 +328,9 @@ def _assemble(scene, plan: ScenePlan, samples, tree, shading: _Shading, pairs: d
         return None if a is None else jnp.asarray(a)
 
     order = tree.order
-    pairs = pairs or dict(pq=None, pe=None, near_q=None, near_s=None, rho0=near_radius(samples))
-    light = shading.light
+    pairs = pairs or {"pq": None, "pe": None, "near_q": None, "near_s": None, "rho0": near_radius(samples)}
     return Prepared(
+        **shaded_fields(scene, plan, shading),
         sample_pos=jnp.asarray(samples.positions[order]),
         areas=jnp.asarray(samples.areas[order]),
         light_cos=jnp.asarray(samples.light.cos[order]),
@@ -306,23 +340,12 @@ def _assemble(scene, plan: ScenePlan, samples, tree, shading: _Shading, pairs: d
         ent_pos=jnp.asarray(tree.centroid),
         ent_start=jnp.asarray(tree.start),
         ent_stop=jnp.asarray(tree.stop),
-        query_pos=jnp.asarray(shading.pos),
-        query_normal=jnp.asarray(shading.normal),
-        to_eye=jnp.asarray(shading.to_eye),
-        query_to_light=None if light is None else jnp.asarray(light.to_light),
-        query_irradiance=None if light is None else jnp.asarray(light.irradiance),
         pair_query=pairs["pq"],
         pair_entity=pairs["pe"],
         near_query=opt(pairs["near_q"]),
         near_sample=opt(pairs["near_s"]),
         rho0=jnp.asarray(pairs["rho0"]),
-        query_pixel=jnp.asarray(shading.pixel),
-        constant=jnp.asarray(shading.constant),
-        shape=shading.shape,
-        spp=shading.spp,
         method=plan.method,
-        single_scattering=plan.single_scattering,
-        specular_roughness=scene.material.specular_roughness if plan.specular else None,
         shared_channel=plan.shared_channel,
     )
 
@@ -342,7 +365,7 @@ def _pair_info(pairs: dict, n_points: int) -> dict[str, Any]:
 
 def prepare(scene, *, method: str | None = None, eps: float | None = None, resolution=None,
             plan: ScenePlan | None = None, progress: bool = False, pixel_mask: np.ndarray | None = None,
-            cutoff: bool = True, share_channels: bool = True, block_pairs: int = BLOCK_PAIRS):
+            cutoff: bool = True, share_channels: bool = True, block_pairs: int = BLOCK_PAIRS, points=None):
     """Geometry-only work: pass 1, camera rays, octree and interaction lists.
 
     Args:
@@ -355,6 +378,8 @@ def prepare(scene, *, method: str | None = None, eps: float | None = None, resol
         pixel_mask: optional ``(H, W)`` bool: shade only these pixels (the rest are 0) -- fitting on a subset and
             measuring the direct sum on part of an image use it.
         cutoff, share_channels: passed to the plan (fitting turns both off).
+        points: optional ``(positions (Q, 3), normals (Q, 3))`` to shade instead of the camera's pixels (the image is
+            then ``(1, Q, C)``, diffusion only; validation against the mesh Monte Carlo uses it).
 
     Returns:
         ``(prepared, plan, info)`` where ``info`` holds timings (s) and counts.
@@ -375,7 +400,11 @@ def prepare(scene, *, method: str | None = None, eps: float | None = None, resol
 
     # Camera rays and lighting at the shaded points.
     t0 = time.perf_counter()
-    shading = _shading_points(scene, geometry, plan, resolution, pixel_mask, samples.light.irradiance.shape[-1])
+    if points is None:
+        shading = _shading_points(scene, geometry, plan, resolution, pixel_mask, samples.light.irradiance.shape[-1])
+    else:
+        shading = point_shading(points, samples.light.irradiance.shape[-1])
+        plan = plan._replace(single_scattering=False, specular=False)
     timings["camera_rays"] = time.perf_counter() - t0
     bar.set_postfix_str(f"{len(shading.pos)} shaded points")
     bar.update()
