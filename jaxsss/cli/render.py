@@ -1,4 +1,5 @@
-"""``jaxsss render SCENE.toml -o out.png``: render a translucent object (hierarchical or direct sum).
+"""``jaxsss render SCENE.toml -o out.png``: render a translucent object (hierarchical, direct, cached, layered or
+photon method).
 
 Writes ``out.png`` (sRGB), ``out.npy`` (linear radiance, H x W x 3, W/(mm^2 sr)), ``out.exr`` and, with ``--json``,
 the report: timings per pass (compilation apart), the sample count, interactions per shaded point, the plan and the
@@ -34,11 +35,15 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
     p.add_argument("-o", "--output", type=Path, default=None,
                    help="output PNG (sRGB); OUT.npy (linear) and OUT.exr are written beside it "
                         "(default: the scene name with .png in the current directory)")
-    p.add_argument("--method", choices=("hierarchical", "direct", "cached", "layered"), default=None,
+    p.add_argument("--method", choices=("hierarchical", "direct", "cached", "layered", "photon"), default=None,
                    help="pass-2 method (default: the scene's [render].method); cached = irradiance caching with "
                         "gradients (Keng et al. 2006) on top of the hierarchical sum; layered = single scattering "
                         "ray-marched through the scene's [layers] subsurface textures (Francois et al.), plus the "
-                        "outer layer's diffusion where the plan says so")
+                        "outer layer's diffusion where the plan says so; photon = photon diffusion (Donner and "
+                        "Jensen 2007): photons traced into the mesh store volumetric sources, summed hierarchically "
+                        "with the blended dipole, quadpole and multipole; [[blocker]] meshes cast volumetric shadows")
+    p.add_argument("--photons", type=int, default=None, metavar="N",
+                   help="photon method: photons traced from the lights, >= 1 (default: [render].photons)")
     p.add_argument("--samples", type=int, default=None, metavar="N",
                    help="layered method: samples per view ray, >= 1 (default: [layers].samples)")
     p.add_argument("--cache-error", type=number, default=0.3, metavar="A",
@@ -76,6 +81,8 @@ def run(args) -> int:
         raise CLIError(f"--cache-error {args.cache_error:g} is outside the allowed range (0, inf)")
     if args.method == "layered":
         return _run_layered(args, scene)
+    if args.method == "photon":
+        return _run_photon(args, scene)
     if args.explain:
         if args.method == "cached":
             from jaxsss.render.cache import explain_cached
@@ -120,6 +127,39 @@ def run(args) -> int:
                   f"interpolation error mean {r['interpolation_error_estimate_mean']:.3g}, max "
                   f"{r['interpolation_error_estimate_max']:.3g}")
         print("  " + ", ".join(f"{k} {v:.2f} s" for k, v in t.items()) + f"; total {r['seconds_total']:.2f} s")
+    return 0
+
+
+def _run_photon(args, scene) -> int:
+    """``--method photon``: photon tracing, the source octree and the blended hierarchical sum."""
+    from jaxsss.photon.render import prepare_photon, render_photon
+    from jaxsss.render import write_outputs
+    from jaxsss.render.plan import explain_items
+
+    if args.photons is not None and args.photons < 1:
+        raise CLIError(f"--photons {args.photons} is outside the allowed range [1, inf)")
+    if args.explain:
+        _, items, _ = prepare_photon(scene, n_photons=args.photons, eps=args.eps, resolution=args.resolution,
+                                     progress=not args.quiet)
+        print(f"scene plan for {args.scene} (photon):")
+        print(explain_items(items))
+        if args.json:
+            args.json.parent.mkdir(parents=True, exist_ok=True)
+            args.json.write_text(json.dumps({"plan": [i._asdict() for i in items]}, indent=2) + "\n")
+        return 0
+    out = args.output or Path(args.scene.with_suffix(".png").name)
+    image, report, _ = render_photon(scene, n_photons=args.photons, eps=args.eps, resolution=args.resolution,
+                                     progress=not args.quiet)
+    paths = write_outputs(out, image, report, exposure=scene.output.exposure, exr=not args.no_exr,
+                          json_path=args.json)
+    if not args.quiet:
+        t = report["timings"]
+        print(f"rendered {args.scene} (photon) -> {', '.join(paths.values())}")
+        print(f"  {report['resolution'][0]}x{report['resolution'][1]}, {report['n_photons']} photons, "
+              f"{report['n_sources']} sources, {report['n_shaded_points']} shaded points, "
+              f"{report['interactions_per_point_mean']:.1f} interactions per point "
+              f"({report['n_interactions_multipole']} with the multipole, {report['n_pairs_blocked']} blocked)")
+        print("  " + ", ".join(f"{k} {v:.2f} s" for k, v in t.items()) + f"; total {report['seconds_total']:.2f} s")
     return 0
 
 

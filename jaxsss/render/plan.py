@@ -176,6 +176,10 @@ def make_plan(scene, *, method: str | None = None, eps: float | None = None, cut
                           "the scene's [layers] are marched by --method layered only"))
     if scene.material.texture is not None:
         items.append(PlanItem("texture", True, "the texture scales the irradiance samples (the paper's face example)"))
+    blockers = getattr(scene, "blockers", ())
+    if blockers:
+        items.append(PlanItem("blockers", False, f"{len(blockers)} [[blocker]] mesh(es) inside the object: only "
+                                                 "--method photon traces them (volumetric shadows)"))
     if scene.occluders:
         items.append(PlanItem("occluders", True, f"{len(scene.occluders)} opaque Lambertian object(s) shaded "
                                                  "directly"))

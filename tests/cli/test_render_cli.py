@@ -176,3 +176,25 @@ def test_layered_method_adds_the_forced_diffusion_term(capsys, tmp_path):
 def test_layered_method_needs_a_layers_table(capsys, small_scene):
     code, _, err = run_cli(capsys, "render", small_scene, "--method", "layered")
     assert code == 2 and "[layers]" in err and err.count("\n") == 1
+
+
+def test_photon_method_explain_and_render(capsys, tmp_path):
+    scene = EXAMPLES / "photon_blocker.toml"
+    code, stdout, err = run_cli(capsys, "render", scene, "--method", "photon", "--photons", 2000, "--resolution", 16,
+                                12, "--explain", "--quiet")
+    assert code == 0, err
+    assert "+ volumetric shadows" in stdout and "blocker(s)" in stdout and "+ multipole" in stdout
+    out = tmp_path / "p.png"
+    code, stdout, err = run_cli(capsys, "render", scene, "--method", "photon", "--photons", 2000, "--resolution", 16,
+                                12, "-o", out, "--no-exr", "--json", tmp_path / "p.json")
+    assert code == 0, err
+    assert out.read_bytes()[:8] == PNG_SIGNATURE and "2000 photons" in stdout
+    report = json.loads((tmp_path / "p.json").read_text())
+    assert report["method"] == "photon" and report["n_photons"] == 2000 and report["n_pairs_blocked"] > 0
+    img = np.load(out.with_suffix(".npy"))
+    assert img.shape == (12, 16, 3) and np.isfinite(img).all() and img.min() >= 0 and img.max() > 0
+
+
+def test_photon_method_rejects_bad_photon_counts(capsys):
+    code, _, err = run_cli(capsys, "render", EXAMPLES / "photon_blocker.toml", "--method", "photon", "--photons", 0)
+    assert code == 2 and "--photons 0" in err and "[1, inf)" in err and err.count("\n") == 1

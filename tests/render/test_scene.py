@@ -240,6 +240,9 @@ ERROR_CASES = [
     ("background", _replace("output", {"background": [0, -1, 0]}), "output.background", "[0, inf)"),
     ("occluder-albedo", _floor(albedo=1.5), "occluder[0].albedo", "[0, 1]"),
     ("occluder-no-mesh", _replace("occluder", [{"albedo": 0.5}]), "occluder[0]", "exactly one"),
+    ("blocker-no-mesh", _replace("blocker", [{}]), "blocker[0]", "exactly one"),
+    ("blocker-albedo", _replace("blocker", [{"builtin": "box", "albedo": 0.5}]), "blocker[0].albedo", "unknown key"),
+    ("photons", _replace("render", {"photons": 0}), "render.photons", "[1, inf)"),
     ("environment-missing", _replace("environment", "sky.hdr"), "environment", "does not exist"),
     ("section-not-table", _replace("camera", [1, 2]), "camera", "table"),
 ]
@@ -332,6 +335,18 @@ def test_environment_path_is_resolved(tmp_path):
     (tmp_path / "sky.hdr").write_bytes(b"#?RADIANCE\n")
     scene = parse_scene(_with(_replace("environment", "sky.hdr")), base_dir=tmp_path)
     assert scene.environment == str(tmp_path / "sky.hdr")
+
+
+def test_blockers_are_parsed_and_noted_by_the_plan():
+    from jaxsss.render.plan import make_plan
+
+    scene = parse_scene(_with(_replace("blocker", [{"builtin": "box", "extents": [2.0, 3.0, 4.0]}])))
+    assert len(scene.blockers) == 1 and scene.blockers[0].description == "builtin box (extents=[2, 3, 4])"
+    np.testing.assert_allclose(scene.blockers[0].mesh.extents, [2.0, 3.0, 4.0])
+    item = {i.name: i for i in make_plan(scene).items}["blockers"]
+    assert not item.included and "--method photon" in item.reason
+    assert parse_scene(BASE).blockers == () and "blockers" not in {i.name for i in make_plan(parse_scene(BASE)).items}
+    assert parse_scene(_with(_replace("render", {"photons": 1234}))).render.photons == 1234
 
 
 def test_scene_with():
