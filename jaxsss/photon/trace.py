@@ -245,8 +245,9 @@ def trace_photons(geometry: SceneGeometry, photons: PhotonRays, sigma_a, sigma_s
                 n_f = geometry.combined.face_normals[face]
                 cos_i = -np.einsum("ij,ij->i", dd, n_f)
                 back = cos_i <= 0  # hit from inside: an open mesh or a light inside it; the photon is lost
-                if back.any():
-                    tally["missed"] += (s.w[ids[back]] * s.power[ids[back]]).sum(axis=0)
+                if back.any():  # (light that already exited was tallied then)
+                    lost = ids[back & (s.gen[ids] < 0)]
+                    tally["missed"] += (s.w[lost] * s.power[lost]).sum(axis=0)
                     s.alive[ids[back]] = False
                 keep = ~back
                 ids, face, x, dd, n_f, cos_i = ids[keep], face[keep], x[keep], dd[keep], n_f[keep], cos_i[keep]
@@ -279,7 +280,7 @@ def trace_photons(geometry: SceneGeometry, photons: PhotonRays, sigma_a, sigma_s
             # Free flight from the channel mixture.
             k = rng.integers(0, c, ins.size)
             flight = -np.log1p(-rng.random(ins.size)) / st_[k]
-            scat = flight < t_hit
+            scat = (flight < t_hit) & hits.hit  # a ray that hits nothing leaves through a hole of an open mesh
             # -- scattering events
             i_s = ins[scat]
             if i_s.size:
@@ -328,7 +329,7 @@ def trace_photons(geometry: SceneGeometry, photons: PhotonRays, sigma_a, sigma_s
                 face = hits.face[~scat]
                 x = hits.position[~scat]
                 dd = d[~scat]
-                e = np.exp(-np.outer(th, st_))
+                e = np.exp(-np.outer(np.where(np.isfinite(th), th, 0.0), st_))  # (no hit: no reweighting)
                 surv = np.ones_like(e) if identical else e / e.mean(axis=1, keepdims=True)
                 tally["reweighted"] += (s.w[i_b] * (1.0 - surv) * s.power[i_b]).sum(axis=0)
                 s.w[i_b] *= surv

@@ -1,0 +1,1 @@
+"""Tests of photon diffusion in meshes (jaxsss.photon)."""
