@@ -71,7 +71,7 @@ def cases():
     line = np.linspace(-20.0, 20.0, 41)
     pts = np.stack([line, np.zeros_like(line), np.full_like(line, 4.0)], 1)
     out["blocker"] = ({"mesh": {"builtin": "slab", "width": 60.0, "depth": 40.0, "thickness": 8.0},
-                       "material": MATERIAL, "blocker": [{"builtin": "box", "extents": [8.0, 50.0, 4.0]}],
+                       "material": MATERIAL, "blocker": [{"builtin": "box", "extents": [8.0, 36.0, 4.0]}],
                        "light": [{"type": "directional", "direction": [0.0, 0.0, 1.0], "intensity": 1.0}],
                        "camera": cam},
                       pts, np.tile([0.0, 0.0, 1.0], (len(pts), 1)))
