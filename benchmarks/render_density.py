@@ -43,7 +43,7 @@ ERROR_METRIC = "relative RMS vs density-8 reference (lit pixels)"
 EPS = 0.02
 LIT_FRACTION = 0.05
 CONFIG = {
-    "quick": dict(scene="skin_sphere.toml", resolution=96, densities=(0.5, 1.0), reference=4.0),
+    "quick": dict(scene="skin_sphere.toml", resolution=64, densities=(0.5, 1.0), reference=3.0),
     "full": dict(scene="marble_teapot.toml", resolution=256, densities=(0.25, 0.5, 1.0, 2.0), reference=8.0),
 }
 
