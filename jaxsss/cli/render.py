@@ -130,23 +130,29 @@ def run(args) -> int:
     return 0
 
 
+def _explain_items(args, method: str, items) -> int:
+    """``--explain`` for the methods with their own plan items: print them, and write them with ``--json``."""
+    from jaxsss.render.plan import explain_items
+
+    print(f"scene plan for {args.scene} ({method}):")
+    print(explain_items(items))
+    if args.json:
+        args.json.parent.mkdir(parents=True, exist_ok=True)
+        args.json.write_text(json.dumps({"plan": [i._asdict() for i in items]}, indent=2) + "\n")
+    return 0
+
+
 def _run_photon(args, scene) -> int:
     """``--method photon``: photon tracing, the source octree and the blended hierarchical sum."""
     from jaxsss.photon.render import prepare_photon, render_photon
     from jaxsss.render import write_outputs
-    from jaxsss.render.plan import explain_items
 
     if args.photons is not None and args.photons < 1:
         raise CLIError(f"--photons {args.photons} is outside the allowed range [1, inf)")
     if args.explain:
         _, items, _ = prepare_photon(scene, n_photons=args.photons, eps=args.eps, resolution=args.resolution,
                                      progress=not args.quiet)
-        print(f"scene plan for {args.scene} (photon):")
-        print(explain_items(items))
-        if args.json:
-            args.json.parent.mkdir(parents=True, exist_ok=True)
-            args.json.write_text(json.dumps({"plan": [i._asdict() for i in items]}, indent=2) + "\n")
-        return 0
+        return _explain_items(args, "photon", items)
     out = args.output or Path(args.scene.with_suffix(".png").name)
     image, report, _ = render_photon(scene, n_photons=args.photons, eps=args.eps, resolution=args.resolution,
                                      progress=not args.quiet)
@@ -168,7 +174,6 @@ def _run_layered(args, scene) -> int:
     from jaxsss.layered import render_layered
     from jaxsss.layered.plan import layered_plan
     from jaxsss.render import render, write_outputs
-    from jaxsss.render.plan import explain_items
 
     if scene.layers is None:
         raise CLIError(f"{args.scene}: --method layered needs a [layers] table (see examples/layered_veins.toml)")
@@ -176,12 +181,7 @@ def _run_layered(args, scene) -> int:
         raise CLIError(f"--samples {args.samples} is outside the allowed range [1, inf)")
     diffusion, items = layered_plan(scene, scene.layers, samples=args.samples)
     if args.explain:
-        print(f"scene plan for {args.scene} (layered):")
-        print(explain_items(items))
-        if args.json:
-            args.json.parent.mkdir(parents=True, exist_ok=True)
-            args.json.write_text(json.dumps({"plan": [i._asdict() for i in items]}, indent=2) + "\n")
-        return 0
+        return _explain_items(args, "layered", items)
     out = args.output or Path(args.scene.with_suffix(".png").name)
     result = render_layered(scene, scene.layers, samples=args.samples, resolution=args.resolution)
     image, report = result.image, dict(result.report)
