@@ -15,6 +15,17 @@ carry costs a few integer operations per number, against ~20 rounds of Threefry 
 engine ran ~2x slower with ``jax.random.split`` per step). Lane streams start at independent random points of the
 2^64 cycle; overlaps need ~2^64 / (lanes x draws) -- never in practice.
 
+Radial splitting (``cfg.split_pool > 0``; a variance reduction for the far field) is a weight window in the
+exit-plane radius ``r = sqrt(x^2 + y^2)``: the target weight is ``W(r) = exp(-(clip(r, r_0, r_1) - r_0) / lambda)``
+(``r_0, r_1, 1 / lambda`` in ``params["window"]``). A live photon heavier than ``2 W(r)`` becomes ``m = min(floor(w /
+W), 16)`` copies of weight ``w / m``: it continues as one, and the other ``m - 1`` go to a pool shared by all lanes
+(no split when the pool is full). Dead lanes take waiting copies from the pool before new photons, so the work of
+a copious history spreads over the lanes (a per-lane stack left one lane working through a deep split tree while
+the batch waited: ~100x slower). Russian roulette acts below ``weight_threshold * W(r)``, so it does not undo the
+splitting. Splitting conserves weight exactly, hence the expectation of every tally; copies of one history are
+correlated, so :func:`jaxsss.mc.simulate` forms standard errors from independent batches instead of per-photon
+moments.
+
 Tallies are scatter-adds (``.at[index].add(..., mode="drop")``; lanes that do not contribute get an index one past
 the end, which is dropped). Every per-photon tally also accumulates the square of the photon's contribution, so the
 host can form standard errors from per-photon second moments (each photon exits at most once, so the sum of squares
@@ -53,6 +64,7 @@ class KernelConfig(NamedTuple):
     max_steps: int  # events per photon before it is killed and counted as a step-cap hit
     weight_threshold: float  # Russian roulette below this weight
     roulette_chance: float  # survival probability; survivors' weight is divided by it
+    split_pool: int = 0  # radial splitting: rows of the shared pool of waiting copies (0: off); see params["window"]
 
 
 def _uniform(s):
@@ -169,6 +181,61 @@ def _spin(ux, uy, uz, cos_t, u_phi):
     return jnp.where(near_pole, px, nx), jnp.where(near_pole, py, ny), jnp.where(near_pole, pz, nz)
 
 
+_SPLIT_F = ("x", "y", "z", "ux", "uy", "uz", "w", "s", "path")  # the state a waiting copy keeps
+_SPLIT_I = ("layer", "order", "steps")
+MAX_COPIES = 16
+
+
+def _window(params: dict, r):
+    """Target weight of the radial weight window, ``exp(-(clip(r, r_0, r_1) - r_0) / lambda)``."""
+    r0, r1, inv_len = params["window"][0], params["window"][1], params["window"][2]
+    return jnp.exp(-(jnp.clip(r, r0, r1) - r0) * inv_len)
+
+
+def _split(cfg: KernelConfig, params: dict, old: dict, new: dict, r):
+    """Radial splitting after an event (see the module docstring): a live photon heavier than twice the window's
+    target keeps ``1 / m`` of its weight and writes ``m - 1`` copies to the shared pool, if they fit."""
+    P = cfg.split_pool
+    n = old["pool_n"]
+    target = _window(params, r)
+    m_f = jnp.clip(jnp.floor(new["w"] / target), 2.0, float(MAX_COPIES))
+    m = m_f.astype(jnp.int32)
+    want = new["alive"] & (new["w"] > 2.0 * target)
+    end = n + jnp.cumsum(jnp.where(want, m - 1, 0)).astype(jnp.int32)  # each lane's copies end here (exclusive)
+    split = want & (end <= P)
+    w = jnp.where(split, new["w"] / m_f, new["w"])
+    out = dict(new, w=w)
+    vals_f = jnp.stack([out[k] for k in _SPLIT_F], axis=-1)
+    vals_i = jnp.stack([out[k] for k in _SPLIT_I], axis=-1)
+    # Row j < m - 1 of lane i goes to pool[end_i - (m_i - 1) + j]; the rest are dropped (index P).
+    j = jnp.arange(MAX_COPIES - 1, dtype=jnp.int32)[None, :]
+    rows = jnp.where(split[:, None] & (j < (m - 1)[:, None]), (end - (m - 1))[:, None] + j, P)
+    rows = rows.reshape(-1)
+    rep = MAX_COPIES - 1
+    out["pool_f"] = old["pool_f"].at[rows].set(jnp.repeat(vals_f, rep, axis=0), mode="drop")
+    out["pool_i"] = old["pool_i"].at[rows].set(jnp.repeat(vals_i, rep, axis=0), mode="drop")
+    # Lanes are in order, so the accepted copies fill [n, n + sum) without gaps (a refused lane ends the run).
+    out["pool_n"] = n + jnp.sum(jnp.where(split, m - 1, 0)).astype(jnp.int32)
+    return out
+
+
+def _take_copies(st: dict, dead):
+    """Dead lanes take waiting copies from the top of the pool (before any new photon); returns the state and the
+    lanes still dead."""
+    n = st["pool_n"]
+    rank = jnp.cumsum(dead.astype(jnp.int32)).astype(jnp.int32)  # 1, 2, ... over the dead lanes
+    take = dead & (rank <= n)
+    row = jnp.clip(n - rank, 0, st["pool_f"].shape[0] - 1)
+    top_f, top_i = st["pool_f"][row], st["pool_i"][row]
+    st = dict(st)
+    for j, k in enumerate(_SPLIT_F):
+        st[k] = jnp.where(take, top_f[:, j], st[k])
+    for j, k in enumerate(_SPLIT_I):
+        st[k] = jnp.where(take, top_i[:, j], st[k])
+    st["pool_n"] = n - jnp.sum(take.astype(jnp.int32)).astype(jnp.int32)
+    return st, dead & ~take
+
+
 def batch_kernel(cfg: KernelConfig, params: dict, key, budget):
     """Run one batch of ``budget`` photons; return the batch's tallies (see :func:`new_tallies`).
 
@@ -196,16 +263,24 @@ def batch_kernel(cfg: KernelConfig, params: dict, key, budget):
         "alive": jnp.zeros((lanes,), bool),
         "rng": jax.random.bits(key, (lanes,), jnp.uint64),
     }
+    if cfg.split_pool:
+        # Shared pool of waiting copies (float and int fields); rows [0, pool_n) are in use.
+        state["pool_n"] = jnp.zeros((), jnp.int32)
+        state["pool_f"] = jnp.zeros((cfg.split_pool, len(_SPLIT_F)), f64)
+        state["pool_i"] = jnp.zeros((cfg.split_pool, len(_SPLIT_I)), jnp.int32)
 
     def cond(carry):
         st, _, launched = carry
-        return jnp.any(st["alive"]) | (launched < budget)
+        waiting = st["pool_n"] > 0 if cfg.split_pool else False
+        return jnp.any(st["alive"]) | (launched < budget) | waiting
 
     def body(carry):
         st, tal, launched = carry
         st = dict(st)
         # --- Photon regeneration: dead lanes take new photons while the budget lasts (MCML manual 3.2: launch).
         dead = ~st["alive"]
+        if cfg.split_pool:  # waiting copies first (see _take_copies)
+            st, dead = _take_copies(st, dead)
         rank = jnp.cumsum(dead.astype(jnp.int64))
         launch = dead & (rank <= budget - launched)
         launched = launched + jnp.sum(launch.astype(jnp.int64))
@@ -215,7 +290,7 @@ def batch_kernel(cfg: KernelConfig, params: dict, key, budget):
             st[k] = jnp.where(launch, v, st[k])
         for k in ("layer", "order", "steps"):
             st[k] = jnp.where(launch, 0, st[k])
-        alive = st["alive"] | launch
+        alive = ~dead | launch
 
         rng = st["rng"]
         rng, u_step = _uniform(rng)
@@ -268,8 +343,11 @@ def batch_kernel(cfg: KernelConfig, params: dict, key, budget):
         uy = jnp.where(interact, sy, uy_b)
         uz = jnp.where(interact, sz, uz_b)
         order = st["order"] + interact.astype(jnp.int32)
-        # Russian roulette below the weight threshold (MCML manual 3.8).
-        low = interact & (w < cfg.weight_threshold)
+        # Russian roulette below the weight threshold (MCML manual 3.8); with splitting, relative to the window.
+        threshold = cfg.weight_threshold
+        if cfg.split_pool:
+            threshold = threshold * _window(params, jnp.sqrt(x * x + y * y))
+        low = interact & (w < threshold)
         w_new = jnp.where(low, jnp.where(u_c < cfg.roulette_chance, w / cfg.roulette_chance, 0.0), w)
         roulette_dead = low & (w_new == 0.0)
         roulette = jnp.sum(jnp.where(low, w - w_new, 0.0))
@@ -325,6 +403,8 @@ def batch_kernel(cfg: KernelConfig, params: dict, key, budget):
             "absorbed": absorbed, "layer": jnp.where(inner, nl, layer), "order": order, "steps": steps,
             "alive": alive & ~died, "rng": rng,
         }
+        if cfg.split_pool:
+            new = _split(cfg, params, st, new, r)
         return new, tal, launched
 
     _, tallies, _ = lax.while_loop(cond, body, (state, new_tallies(cfg), jnp.zeros((), jnp.int64)))

@@ -13,6 +13,9 @@ Conventions and choices (see also :mod:`jaxsss.mc._kernel`):
 - Determinism: the result is a function of ``(stack, photons, seed, angle, grids, batch_size, lanes)``. Batch ``b``
   uses ``jax.random.fold_in(jax.random.key(seed), b)``; changing ``lanes`` or ``batch_size`` changes the random
   streams (not the expectation).
+- Radial splitting (``split_length``): a weight window for the far field (:mod:`jaxsss.mc._kernel`). Copies of
+  one history are correlated, so standard errors then come from the spread of ``SPLIT_BATCHES`` independent batch
+  means (``MCResult.stderr_method == "batches"``) instead of per-photon second moments.
 - Compilation: one XLA program per :class:`~jaxsss.mc._kernel.KernelConfig` (number of layers, grid sizes, lanes,
   step cap, roulette settings); coefficients, edges, angle, seed and the batch budget are runtime values, so a new
   medium or the last partial batch does not recompile.
@@ -20,6 +23,7 @@ Conventions and choices (see also :mod:`jaxsss.mc._kernel`):
 
 from __future__ import annotations
 
+import dataclasses
 import math
 import sys
 import time
@@ -40,16 +44,20 @@ __all__ = ["simulate"]
 DEFAULT_LANES = 2**13
 DEFAULT_BATCH = 2**20
 DEFAULT_MAX_STEPS = 10**6
+SPLIT_BATCHES = 16  # default number of batches (for batch-means standard errors) with radial splitting
+MIN_SPLIT_BATCHES = 8
+SPLIT_POOL_PER_LANE = 64  # rows of the shared pool of waiting copies, per lane (a full pool skips further splits)
 
 _COMPILED: dict = {}
 _jitted = jax.jit(batch_kernel, static_argnums=0)
 
 
-def _edges(edges, name: str, *, nonnegative: bool) -> np.ndarray:
+def _edges(edges, name: str, *, nonnegative: bool, min_size: int = 2) -> np.ndarray:
     """Validate bin edges: 1-D, >= 2 finite values, strictly increasing (and >= 0 for radii and pathlengths)."""
     arr = np.asarray(edges, dtype=np.float64)
-    if arr.ndim != 1 or arr.size < 2:
-        raise ValueError(f"simulate({name}=array of shape {arr.shape}) must be 1-D with at least 2 edges")
+    if arr.ndim != 1 or arr.size < min_size:
+        raise ValueError(f"simulate({name}=array of shape {arr.shape}) must be 1-D with at least {min_size} "
+                         f"value{'s' if min_size > 1 else ''}")
     check_range(arr, name, 0.0 if nonnegative else None, None, owner="simulate")
     steps = np.diff(arr)
     if np.any(steps <= 0):
@@ -109,9 +117,9 @@ def _progress_enabled(progress, n_batches: int) -> bool:
 
 
 def simulate(stack: Stack, photons: int, *, seed: int = 0, angle_deg: float = 0.0, r_edges=None, xy_edges=None,
-             pathlength_edges=None, batch_size: int = DEFAULT_BATCH, lanes: int | None = None,
+             pathlength_edges=None, batch_size: int | None = None, lanes: int | None = None,
              max_steps: int = DEFAULT_MAX_STEPS, weight_threshold: float = 1e-4, roulette_chance: float = 0.1,
-             progress: bool | None = None) -> MCResult:
+             split_length: float | None = None, split_start: float = 0.0, split_stop: float | None = None, progress: bool | None = None) -> MCResult:
     """Monte Carlo photon transport (MCML family) through ``stack`` for ``photons`` incident photon packets.
 
     Args:
@@ -123,7 +131,8 @@ def simulate(stack: Stack, photons: int, *, seed: int = 0, angle_deg: float = 0.
         xy_edges: edges of the exit histogram ``R_xy``, mm: one array for both axes or a pair ``(x_edges, y_edges)``.
         pathlength_edges: pathlength bin edges, mm (e.g. log-spaced), ``>= 0``; enables ``R_r_path``; needs
             ``r_edges``.
-        batch_size: photons per compiled call (memory is bounded by ``lanes``, not by this).
+        batch_size: photons per compiled call (memory is bounded by ``lanes``, not by this). Default ``2**20``;
+            with ``split_length``, ``ceil(photons / 16)`` (16 batch means for the standard errors).
         lanes: photons advanced in lock-step. ``None`` (default) picks a power of two in ``[256, 8192]`` that gives
             each lane at least ~64 photons per batch: a batch ends with a tail in which only the longest walks
             (~1e4 events at albedo 0.999) still run, so lanes must be few for small runs. On a GPU pass a larger
@@ -131,6 +140,15 @@ def simulate(stack: Stack, photons: int, *, seed: int = 0, angle_deg: float = 0.
         max_steps: events (interactions + interface hits) per photon before it is killed; hits are counted in
             ``step_cap_hits`` and their weight in ``step_cap_weight``.
         weight_threshold, roulette_chance: Russian roulette (MCML: 1e-4 and 0.1).
+        split_length, split_start, split_stop: radial splitting for far-field profiles, mm (``split_length > 0``,
+            ``0 <= split_start < split_stop``; ``split_length=None``: off; ``split_stop=None``: no stop). A weight window with target ``W(r) =
+            exp(-(clip(r, split_start, split_stop) - split_start) / split_length)``, ``r`` the distance from the
+            beam's axis at the entry point: a photon heavier than ``2 W`` is split into ``min(w / W, 16)`` copies,
+            and roulette acts below ``weight_threshold * W``. All photons at ``r`` then weigh about ``W(r)``, so the
+            number of photons follows ``R(r) r / W(r)``: with ``split_length = l_d = 1 / sigma_tr`` (the far-field
+            decay of ``R``) it stays roughly constant out to ``split_stop``. Set ``split_stop`` to the last radius
+            of interest: beyond it the window is flat, so the work stays bounded. Unbiased; standard errors then come
+            from at least 8 independent batches (``stderr_method == "batches"``).
         progress: a tqdm bar over batches; ``None`` shows it when there is more than one batch and stderr is a
             terminal.
 
@@ -144,7 +162,19 @@ def simulate(stack: Stack, photons: int, *, seed: int = 0, angle_deg: float = 0.
         raise ValueError(f"simulate(stack={stack!r}) must be a jaxsss.mc.Stack")
     photons = _positive_int(photons, "photons")
     seed = _positive_int(seed, "seed", lo=0)
+    splitting = split_length is not None
+    if splitting:
+        split_length = float(check_range(split_length, "split_length", 0.0, None, lo_open=True, owner="simulate"))
+        split_start = float(check_range(split_start, "split_start", 0.0, None, owner="simulate"))
+        if split_stop is not None:
+            split_stop = float(check_range(split_stop, "split_stop", split_start, None, lo_open=True, owner="simulate"))
+    if batch_size is None:
+        batch_size = max(math.ceil(photons / SPLIT_BATCHES), 1) if splitting else DEFAULT_BATCH
     batch_size = _positive_int(batch_size, "batch_size")
+    if splitting and math.ceil(photons / batch_size) < MIN_SPLIT_BATCHES:
+        raise ValueError(f"simulate(batch_size={batch_size}) gives {math.ceil(photons / batch_size)} batches for "
+                         f"photons={photons}; radial splitting needs at least {MIN_SPLIT_BATCHES} (standard errors "
+                         "come from batch means): use a smaller batch_size or more photons")
     lanes = _auto_lanes(min(photons, batch_size)) if lanes is None else _positive_int(lanes, "lanes")
     max_steps = _positive_int(max_steps, "max_steps")
     angle_deg = float(check_range(angle_deg, "angle_deg", 0.0, 90.0, hi_open=True, owner="simulate"))
@@ -177,6 +207,7 @@ def simulate(stack: Stack, photons: int, *, seed: int = 0, angle_deg: float = 0.
         max_steps=max_steps,
         weight_threshold=weight_threshold,
         roulette_chance=roulette_chance,
+        split_pool=SPLIT_POOL_PER_LANE * lanes if splitting else 0,
     )
     R_specular, ux0, uz0 = entry_state(stack.n_above, float(np.asarray(stack.n)[0]), angle_deg)
     dummy = np.zeros(2)
@@ -190,6 +221,8 @@ def simulate(stack: Stack, photons: int, *, seed: int = 0, angle_deg: float = 0.
         "path_edges": dummy if pathlength_edges is None else pathlength_edges,
         "entry": np.array([ux0, uz0, 1.0 - R_specular]),
     }
+    if splitting:
+        params["window"] = np.array([split_start, 1e300 if split_stop is None else split_stop, 1.0 / split_length])
     params = {k: jnp.asarray(v, dtype=jnp.float64) for k, v in params.items()}
 
     t_start = time.perf_counter()
@@ -197,6 +230,7 @@ def simulate(stack: Stack, photons: int, *, seed: int = 0, angle_deg: float = 0.
     root = jax.random.key(seed)
     fn, compile_seconds = _compiled(cfg, params, root, jnp.asarray(batch_size, jnp.int64))
     totals: dict[str, np.ndarray] = {}
+    per_batch: list[tuple[int, dict]] = []
     batches = range(n_batches)
     if _progress_enabled(progress, n_batches):
         from tqdm.auto import tqdm
@@ -205,13 +239,56 @@ def simulate(stack: Stack, photons: int, *, seed: int = 0, angle_deg: float = 0.
     for b in batches:
         budget = min(batch_size, photons - b * batch_size)
         out = fn(params, jax.random.fold_in(root, b), jnp.asarray(budget, jnp.int64))
+        out = {k: np.asarray(v) for k, v in out.items()}
+        if splitting:
+            per_batch.append((budget, out))
         for k, v in out.items():
-            v = np.asarray(v)
             totals[k] = v.copy() if k not in totals else totals[k] + v
     seconds = time.perf_counter() - t_start
-    return _assemble(totals, photons, R_specular, cfg, r_edges, x_edges, y_edges, pathlength_edges,
-                     seed=seed, angle_deg=angle_deg, seconds=seconds, compile_seconds=compile_seconds,
-                     batches=n_batches, batch_size=batch_size)
+    meta = dict(seed=seed, angle_deg=angle_deg, seconds=seconds, compile_seconds=compile_seconds,
+                batches=n_batches, batch_size=batch_size)
+    if not splitting:
+        return _assemble(totals, photons, R_specular, cfg, r_edges, x_edges, y_edges, pathlength_edges, **meta)
+    totals, mean_r_err = _batch_moments(per_batch, photons)
+    res = _assemble(totals, photons, R_specular, cfg, r_edges, x_edges, y_edges, pathlength_edges,
+                    stderr_method="batches", split_length=split_length, split_start=split_start,
+                    split_stop=split_stop, **meta)
+    return dataclasses.replace(res, mean_exit_radius_stderr=mean_r_err)
+
+
+def _batch_moments(per_batch: list[tuple[int, dict]], N: int) -> tuple[dict, float]:
+    """Summed tallies whose second moments reproduce the *batch-means* variance (radial splitting).
+
+    For a tally with batch sums ``S_b`` over ``n_b`` photons, the mean is ``m = sum S_b / N`` and its variance is
+    estimated by ``B / (B - 1) * sum_b (n_b / N)^2 (S_b / n_b - m)^2``. :func:`_assemble` forms every standard
+    error with :func:`stderr_of_mean` from (sum, sum of squares, N); this returns the pseudo sum of squares
+    ``N ((N - 1) var + m^2)`` for which that formula gives the batch-means error, so the assembly is shared. Also
+    returns the batch-means error of the mean exit radius (a ratio: batch ratios weighted by batch weight)."""
+    B = len(per_batch)
+    n = np.array([b for b, _ in per_batch], np.float64)
+    totals = {k: sum(out[k] for _, out in per_batch) for k in per_batch[0][1]}
+
+    def pseudo_sq(sums):  # sums: (B, ...) batch sums -> pseudo sum of squares
+        m = sums.sum(0) / N
+        x = sums / n.reshape((-1,) + (1,) * (sums.ndim - 1))
+        var = B / (B - 1) * np.sum((n.reshape(x.shape[:1] + (1,) * (x.ndim - 1)) / N) ** 2 * (x - m) ** 2, axis=0)
+        return N * ((N - 1) * var + m * m)
+
+    for k in ("exit", "profile", "xy", "r_path"):
+        if k in totals:
+            sums = np.stack([out[k][..., 0] for _, out in per_batch])
+            totals[k] = np.stack([totals[k][..., 0], pseudo_sq(sums)], axis=-1)
+    totals["absorbed_sq"] = pseudo_sq(np.stack([out["absorbed"].sum() for _, out in per_batch]))
+    W = np.array([out["exit"][0, :, 0].sum() for _, out in per_batch])
+    wr = np.array([out["exit_radius"][0] for _, out in per_batch])
+    if W.sum() > 0:
+        ratio = wr.sum() / W.sum()
+        with np.errstate(invalid="ignore", divide="ignore"):
+            var = B / (B - 1) * np.sum((W / W.sum()) ** 2 * (np.where(W > 0, wr / W, ratio) - ratio) ** 2)
+        mean_r_err = float(np.sqrt(var))
+    else:
+        mean_r_err = float("nan")
+    return totals, mean_r_err
 
 
 def _assemble(t, N, R_specular, cfg, r_edges, x_edges, y_edges, path_edges, **meta) -> MCResult:

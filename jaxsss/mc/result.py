@@ -9,6 +9,8 @@ photon exits at most once, so its contribution to any exit tally is one weight; 
 the engine before squaring. These errors are exact for the estimator (no batching assumption). The Russian
 roulette's net weight and the step-cap losses are reported separately, so that the bookkeeping
 ``R_specular + R_diffuse + T + A + roulette_balance + step_cap_weight = 1`` holds to rounding for every run.
+With radial splitting (``simulate(split_length=...)``) one photon's copies are correlated, so errors come instead from
+the spread of independent batch means (``stderr_method == "batches"``).
 """
 
 from __future__ import annotations
@@ -60,7 +62,9 @@ class MCResult:
 
     Metadata: photons, seed, angle_deg (incidence in air, degrees), seconds (wall time of the whole run),
     compile_seconds (0 when the kernel was already compiled), events (lane events of live photons: interactions +
-    interface hits), batches, lanes, batch_size, max_steps.
+    interface hits), batches, lanes, batch_size, max_steps; stderr_method (``"photons"``: per-photon second
+    moments; ``"batches"``: the spread of independent batch means, used with radial splitting), split_length,
+    split_start and split_stop (mm; None, 0 and None without splitting).
     """
 
     photons: int
@@ -108,6 +112,10 @@ class MCResult:
     pathlength_edges: np.ndarray | None = None
     R_r_path: np.ndarray | None = None
     R_r_path_stderr: np.ndarray | None = None
+    stderr_method: str = "photons"
+    split_length: float | None = None
+    split_start: float = 0.0
+    split_stop: float | None = None
 
     # --- Views -----------------------------------------------------------------------------------------------------
     @property

@@ -18,9 +18,10 @@ Numerical choices (docs/architecture.md, "Monte Carlo"):
   within it: ``exp(-mu L_0) (1 - exp(-mu dL)) / (mu dL)``. The true density falls like ``L^-1.5`` inside a bin;
   at 40 bins per decade the resulting bias is below 0.1% for ``mu L < 1``, about 0.4% at ``mu L = 10``.
 - Radii: a first bin ``[0, 1e-2)``, then 20 log-spaced bins per decade to 10^3.5 optical units, trimmed where the
-  bin holds fewer than ~100 photons (shipped: out to 200-224 optical units for g = 0, i.e. 200 l_u; 794-891 for
-  g = 0.9, i.e. 79-89 l_u). Leading bins with < ~100 photons are merged into the first (g = 0.9 sends almost
-  nothing back near the source: its first bin is [0, 0.45) for n = 1 and [0, 0.89) for n = 1.4, i.e. < 0.09 l_u).
+  bin holds fewer than ~100 photons (shipped: out to 200-224 optical units for g = 0, i.e. 200 l_u; 1259 for
+  g = 0.9, i.e. 126 l_u). Leading bins with < ~100 photons are merged into the first (g = 0.9 sends almost
+  nothing back near the source: its first bin is [0, 0.05) for n = 1 and [0, 0.07) for n = 1.4, i.e. < 0.01 l_u,
+  with the 1e6-photon tables).
   Between bin centres (geometric centres; ``r_1 / 2`` for the first) the model
   interpolates ``log R`` with a cubic Hermite spline in ``log r`` (centred-difference slopes): smooth in ``r`` and in
   the coefficients. **Below the first centre** ``R`` is held constant (the disk average over ``r < 1e-2 / sigma_s``,
@@ -30,7 +31,8 @@ Numerical choices (docs/architecture.md, "Monte Carlo"):
   in log space, differentiable) so that the interpolant's average over every annulus reproduces the table; used
   as point values at the geometric centres they would put the plane integral 0.5-1.3% low.
 - Truncation: photons with ``L > path_max`` (or killed by the step cap) are not in the table; each table records
-  that weight (``lost_weight``: 1.7% / 2.8% for g = 0, n = 1 / 1.4; 3.3% / 5.3% for g = 0.9). This biases R low
+  that weight (``lost_weight``: 1.7% / 2.6% / 2.8% for g = 0, n = 1 / 1.33 / 1.4; 3.1% / 5.1% for g = 0.9, n = 1
+  / 1.4). This biases R low
   where paths that long still carry weight: at radius ``r`` the dominant paths have ``mu L ~ r / (2 l_d)``, so the
   model is valid (bias < ~1%) up to ``r ~ 10 l_d`` for ``mu >= table.valid_mu_min = 20 / path_max``: 2e-3 for
   g = 0 and 6.7e-4 for g = 0.9 (``sigma_a / sigma_s' >= 2e-3`` and ``>= 6.7e-3``). The bound is conservative: at
@@ -68,11 +70,12 @@ __all__ = [
 ]
 
 TABLE_DIR = Path(__file__).resolve().parent / "data"
-STANDARD_PAIRS = ((0.0, 1.0), (0.0, 1.4), (0.9, 1.0), (0.9, 1.4))
-"""The ``(g, n)`` pairs shipped in ``jaxsss/mc/data``; others (e.g. n = 1.33) with ``--regenerate --g G --n N``."""
+STANDARD_PAIRS = ((0.0, 1.0), (0.0, 1.33), (0.0, 1.4), (0.9, 1.0), (0.9, 1.33), (0.9, 1.4))
+"""The ``(g, n)`` pairs shipped in ``jaxsss/mc/data`` (n = 1.33: water-based media such as milk); others with
+``python -m jaxsss.mc.make_white_tables --regenerate --g G --n N``."""
 # Photons, pathlength cap (optical units) and lanes per g; the seed is fixed per pair (see _seed).
 GENERATION = {0.0: {"photons": 1_000_000, "path_max": 1e4, "lanes": 4096},
-              0.9: {"photons": 100_000, "path_max": 3e4, "lanes": 2048}}
+              0.9: {"photons": 1_000_000, "path_max": 3e4, "lanes": 2048}}
 R_FIRST_EDGE = 1e-2
 R_PER_DECADE = 20
 R_LOG_MAX = 3.5

@@ -50,6 +50,7 @@ def direct(request):
 
 
 def test_profile_matches_direct_run(direct):
+    """Plain direct runs, where they have counts (to ~6-10 l_d); out to 20 l_d see tests/mc/test_splitting.py."""
     res, tab, edges = direct["res"], direct["table"], direct["edges"]
     sa, ssp = direct["sigma_a"], direct["sigma_s_prime"]
     model = _annulus_average(tab, sa, ssp, edges)
