@@ -23,14 +23,20 @@ import time
 import numpy as np
 
 from benchmarks._harness import make_row, parse_args, time_call, write_results
-from jaxsss.mc import Stack, load_white_table, simulate, white_mc_profile, white_mc_profile_stderr
+from jaxsss.mc import (
+    Stack,
+    load_white_table,
+    simulate,
+    white_mc_profile,
+    white_mc_profile_stderr,
+)
 from jaxsss.medium import Medium
 
 NAME = "white_far_field"
 # (g, n, sigma_a, sigma_s') in 1/mm; the first is tests/mc/test_white.py's held-out g = 0 case.
 CASES = ((0.0, 1.4, 0.05, 2.0), (0.0, 1.0, 0.3, 1.0), (0.9, 1.0, 0.1, 1.0))
 BANDS_LD = ((0.0, 1.0), (1.0, 5.0), (5.0, 10.0), (10.0, 15.0), (15.0, 20.0))
-CONFIG = {"quick": dict(cases=CASES[1:2], photons=20_000), "full": dict(cases=CASES, photons=100_000)}
+CONFIG = {"quick": {"cases": CASES[1:2], "photons": 20_000}, "full": {"cases": CASES, "photons": 100_000}}
 _GL_X, _GL_W = np.polynomial.legendre.leggauss(8)
 
 

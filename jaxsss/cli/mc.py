@@ -44,6 +44,10 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
     p.add_argument("--seed", type=int, default=0, metavar="K", help="random seed, >= 0 (default 0)")
     p.add_argument("--r-max", type=number, metavar="R", help="outer edge of the radial profile, mm, > 0")
     p.add_argument("--r-bins", type=int, default=50, metavar="M", help="number of radial bins, >= 1 (default 50)")
+    p.add_argument("--split-length", type=number, metavar="L",
+                   help="radial splitting for far-field profiles: a weight window that decays like exp(-r/L) from "
+                   "r = L to --r-max, mm, > 0 (use the diffusion length l_d = 1/sigma_tr; `jaxsss reparam` prints "
+                   "it). Standard errors then come from 16 batch means; needs --r-max and >= 8 photons")
     p.add_argument("-o", "--output", metavar="FILE.csv", help="write the radial profile R(r) (and T(r)) to a CSV")
     p.add_argument("--json", action="store_true", help="print one JSON object instead of a table")
     p.add_argument("--no-progress", action="store_true", help="no progress bar (it shows only on a terminal)")
@@ -72,7 +76,9 @@ def _write_csv(path, res, slab: bool, args) -> Path:
     header = [
         f"# jaxsss mc: {medium}, angle={args.angle:g} deg, photons={res.photons}, seed={res.seed}",
         f"# r_mm: bin centre (mm) of {len(res.R_r)} equal bins of [0, {args.r_max:g}] mm; R, T: per incident photon "
-        "per mm^2 (1/mm^2); *_stderr: standard errors",
+        "per mm^2 (1/mm^2); *_stderr: standard errors"
+        + (f" from {res.batches} batch means (radial splitting, length {res.split_length:g} mm)"
+           if res.stderr_method == "batches" else ""),
         f"# R_specular={res.R_specular:.8g}, R_diffuse={res.R_diffuse:.8g} +- {res.R_diffuse_stderr:.2g}, "
         f"T={res.T:.8g} +- {res.T_stderr:.2g}, A={res.A:.8g}",
         ",".join(names),
@@ -98,8 +104,19 @@ def run(args) -> int:
     else:
         stack = Stack.half_space(args.sigma_a, args.sigma_s, args.g, args.eta)
     r_edges = _r_edges(args)
+    split = {}
+    if args.split_length is not None:
+        if r_edges is None:
+            raise CLIError("--split-length needs --r-max: splitting stops at the end of the radial grid")
+        if not args.split_length > 0:
+            raise CLIError(f"--split-length={args.split_length:g} is outside the allowed range (0, inf)")
+        if args.photons < 8:
+            raise CLIError(f"--photons={args.photons} is outside the allowed range with --split-length: [8, inf) "
+                           "(standard errors come from batch means)")
+        split = {"split_length": args.split_length, "split_start": min(args.split_length, 0.5 * args.r_max),
+                 "split_stop": args.r_max}
     res = simulate(stack, args.photons, seed=args.seed, angle_deg=args.angle, r_edges=r_edges,
-                   progress=False if args.no_progress else None)
+                   progress=False if args.no_progress else None, **split)
     totals = {
         "R_specular": res.R_specular, "R_diffuse": res.R_diffuse, "R_diffuse_stderr": res.R_diffuse_stderr,
         "T": res.T, "T_stderr": res.T_stderr, "T_unscattered": res.T_unscattered, "A": res.A,

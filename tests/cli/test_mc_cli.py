@@ -56,6 +56,22 @@ def test_half_space_csv_has_no_T_columns(capsys, tmp_path):
     assert "r_mm,R,R_stderr" in path.read_text().splitlines()
 
 
+def test_split_length_measures_the_far_field(capsys, tmp_path):
+    """--split-length (radial splitting): the CSV says the errors are batch means, and the far bins that a plain run
+    of the same photons leaves empty are measured."""
+    medium = ["--sigma-a", 0.3, "--sigma-s", 1.0, "--eta", 1.0, "--photons", 4000, "--seed", 3, "--r-max", 15,
+              "--r-bins", 15]
+    path = tmp_path / "split.csv"
+    code, _, err = run_cli(capsys, "mc", *medium, "--split-length", 0.93, "-o", path, "--no-progress")
+    assert code == 0, err
+    text = path.read_text()
+    assert "from 16 batch means (radial splitting, length 0.93 mm)" in text
+    data = np.loadtxt(path, delimiter=",", comments="#", skiprows=4)
+    plain = run_json(capsys, "mc", *medium, "--no-progress")
+    assert np.all(data[:, 1] > 0) and np.all(data[:, 2] < 0.5 * data[:, 1])
+    assert np.sum(np.asarray(plain["R"]) == 0) >= 2  # the plain run has no counts at all in the last bins
+
+
 def test_table(capsys):
     code, out, err = run_cli(capsys, "mc", *SLAB, "--photons", 1000)
     assert code == 0 and err == ""
@@ -86,6 +102,9 @@ def test_help_states_units(capsys):
         (["--sigma-a", 0.1, "--sigma-s", 1, "--photons", 10, "--r-max", 0], "--r-max=0"),
         (["--sigma-a", "nan", "--sigma-s", 1, "--photons", 10], "invalid number"),
         (["--sigma-s", 1, "--photons", 10], "--sigma-a"),
+        (["--sigma-a", 0.1, "--sigma-s", 1, "--photons", 10, "--split-length", 2], "needs --r-max"),
+        (["--sigma-a", 0.1, "--sigma-s", 1, "--photons", 10, "--r-max", 5, "--split-length", 0], "--split-length=0"),
+        (["--sigma-a", 0.1, "--sigma-s", 1, "--photons", 4, "--r-max", 5, "--split-length", 2], "[8, inf)"),
     ],
 )
 def test_user_errors_give_one_line_and_exit_2(capsys, argv, fragment):

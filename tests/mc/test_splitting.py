@@ -7,7 +7,13 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from jaxsss.mc import Stack, load_white_table, simulate, white_mc_profile, white_mc_profile_stderr
+from jaxsss.mc import (
+    Stack,
+    load_white_table,
+    simulate,
+    white_mc_profile,
+    white_mc_profile_stderr,
+)
 from jaxsss.mc.engine import _batch_moments
 from jaxsss.mc.result import stderr_of_mean
 from jaxsss.medium import Medium
