@@ -20,8 +20,8 @@ exit-plane radius ``r = sqrt(x^2 + y^2)``: the target weight is ``W(r) = exp(-(c
 (``r_0, r_1, 1 / lambda`` in ``params["window"]``). A live photon heavier than ``2 W(r)`` becomes ``m = min(floor(w /
 W), 16)`` copies of weight ``w / m``: it continues as one, and the other ``m - 1`` go to a pool shared by all lanes
 (no split when the pool is full). Dead lanes take waiting copies from the pool before new photons, so the work of
-a copious history spreads over the lanes (a per-lane stack left one lane working through a deep split tree while
-the batch waited: ~100x slower). Russian roulette acts below ``weight_threshold * W(r)``, so it does not undo the
+a copious history spreads over the lanes (a per-lane stack, tried first, left one lane working through a deep split
+tree while the batch waited: ~200x slower per event than a plain run; with the pool, ~2.2x). Russian roulette acts below ``weight_threshold * W(r)``, so it does not undo the
 splitting. Splitting conserves weight exactly, hence the expectation of every tally; copies of one history are
 correlated, so :func:`jaxsss.mc.simulate` forms standard errors from independent batches instead of per-photon
 moments.
