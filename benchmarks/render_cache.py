@@ -43,7 +43,7 @@ ROOT = Path(__file__).resolve().parents[1]
 ERROR_METRIC = "RMS of averaged display RGB vs the hierarchical image (the caching paper's metric)"
 DEFAULT_SCENE = "marble_teapot.toml"
 CONFIG = {
-    "quick": dict(resolution=96, repeats=1, reference_density=None,
+    "quick": dict(resolution=64, repeats=1, reference_density=None,
                   scenes={"skin_sphere.toml": (0.3, 1.0)}, variants_a=None),
     "full": dict(resolution=512, repeats=2, reference_density=4.0,
                  scenes={"marble_teapot.toml": (0.05, 0.1, 0.3, 1.0, 3.0), "skin_sphere.toml": (0.3, 1.0),
