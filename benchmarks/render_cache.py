@@ -10,7 +10,7 @@ with the error bound ``a`` swept. On the default scene (``examples/marble_teapot
 - a reference at 4x the sample density, against which both the hierarchical and the cached images are also measured:
   the hierarchical image is itself noisy at the pixel scale, and that noise is part of its distance to the cache.
 
-Quick: the skin sphere at 96 x 96 with ``a`` in (0.3, 1), no reference.
+Quick: the skin sphere at 64 x 64 with ``a`` in (0.3, 1), no reference.
 
 Error metrics, over the pixels that hit the object:
 
