@@ -23,6 +23,7 @@ import time
 import numpy as np
 
 from benchmarks._harness import make_row, parse_args, time_call, write_results
+from benchmarks.transport_error import _annulus_average
 from jaxsss.mc import (
     Stack,
     load_white_table,
@@ -37,14 +38,6 @@ NAME = "white_far_field"
 CASES = ((0.0, 1.4, 0.05, 2.0), (0.0, 1.0, 0.3, 1.0), (0.9, 1.0, 0.1, 1.0))
 BANDS_LD = ((0.0, 1.0), (1.0, 5.0), (5.0, 10.0), (10.0, 15.0), (15.0, 20.0))
 CONFIG = {"quick": {"cases": CASES[1:2], "photons": 20_000}, "full": {"cases": CASES, "photons": 100_000}}
-_GL_X, _GL_W = np.polynomial.legendre.leggauss(8)
-
-
-def _annulus_average(table, sigma_a, sigma_s_prime, edges):
-    a, b = edges[:-1, None], edges[1:, None]
-    r = 0.5 * (b - a) * _GL_X + 0.5 * (b + a)
-    R = np.asarray(white_mc_profile(r, sigma_a, sigma_s_prime, table))
-    return (R * r * _GL_W).sum(1) * (b - a)[:, 0] / (b[:, 0] ** 2 - a[:, 0] ** 2)
 
 
 def _rel(value, err):
@@ -64,7 +57,7 @@ def run_case(g, n, sigma_a, sigma_sp, photons):
     plain_photons = int(ref.events / (probe.events / probe.photons))
     plain = simulate(stack, plain_photons, seed=13, r_edges=edges, progress=False)
     table = load_white_table(g, n)
-    model = _annulus_average(table, sigma_a, sigma_sp, edges)
+    model = _annulus_average(lambda r: white_mc_profile(r, sigma_a, sigma_sp, table), edges)
     centres = np.sqrt(edges[1:] * edges[:-1])
     rel_table = np.asarray(white_mc_profile_stderr(centres, sigma_a, sigma_sp, table))
     se = np.hypot(ref.R_r_stderr, rel_table * model)

@@ -52,12 +52,11 @@ _COMPILED: dict = {}
 _jitted = jax.jit(batch_kernel, static_argnums=0)
 
 
-def _edges(edges, name: str, *, nonnegative: bool, min_size: int = 2) -> np.ndarray:
+def _edges(edges, name: str, *, nonnegative: bool) -> np.ndarray:
     """Validate bin edges: 1-D, >= 2 finite values, strictly increasing (and >= 0 for radii and pathlengths)."""
     arr = np.asarray(edges, dtype=np.float64)
-    if arr.ndim != 1 or arr.size < min_size:
-        raise ValueError(f"simulate({name}=array of shape {arr.shape}) must be 1-D with at least {min_size} "
-                         f"value{'s' if min_size > 1 else ''}")
+    if arr.ndim != 1 or arr.size < 2:
+        raise ValueError(f"simulate({name}=array of shape {arr.shape}) must be 1-D with at least 2 edges")
     check_range(arr, name, 0.0 if nonnegative else None, None, owner="simulate")
     steps = np.diff(arr)
     if np.any(steps <= 0):

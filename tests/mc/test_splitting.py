@@ -11,12 +11,12 @@ from jaxsss.mc import (
     Stack,
     load_white_table,
     simulate,
-    white_mc_profile,
     white_mc_profile_stderr,
 )
 from jaxsss.mc.engine import _batch_moments
 from jaxsss.mc.result import stderr_of_mean
 from jaxsss.medium import Medium
+from tests.mc.test_white import _annulus_average
 
 # A short-walk medium (albedo 0.77, g = 0, n = 1.4): cheap photons; 20 l_d = 18.5 mm.
 SA, SS, N_IDX = 0.3, 1.0, 1.4
@@ -92,8 +92,6 @@ def test_bad_split_input():
         simulate(STACK, 1000, split_length=1.0, batch_size=500)
 
 
-_GL_X, _GL_W = np.polynomial.legendre.leggauss(8)
-
 
 def test_white_mc_matches_the_split_reference_out_to_20_ld(runs):
     """White MC (a held-out absorbing medium; the table is a non-absorbing run) within 2% or 3 combined standard
@@ -101,10 +99,7 @@ def test_white_mc_matches_the_split_reference_out_to_20_ld(runs):
     ~8 l_d. benchmarks/white_far_field.py runs the full-size version (three media, 1e5 photons)."""
     split, _ = runs
     tab = load_white_table(0.0, N_IDX)
-    a, b = EDGES[:-1, None], EDGES[1:, None]
-    r = 0.5 * (b - a) * _GL_X + 0.5 * (b + a)
-    R = np.asarray(white_mc_profile(r, SA, SS, tab))
-    model = (R * r * _GL_W).sum(1) * (b - a)[:, 0] / (b[:, 0] ** 2 - a[:, 0] ** 2)  # annulus averages
+    model = _annulus_average(tab, SA, SS, EDGES)
     centres = np.sqrt(EDGES[1:] * EDGES[:-1])
     rel_table = np.asarray(white_mc_profile_stderr(centres, SA, SS, tab))
     assert np.all(split.R_r > 0) and np.all(split.R_r_stderr < 0.3 * split.R_r)
