@@ -4,7 +4,8 @@ Units are mm and 1/mm; ``eta = n_inside / n_outside``; float64 by default; every
 channel axis. See ``docs/architecture.md``.
 """
 
-from jaxsss import _config  # noqa: F401  (enables float64 before anything else)
+from jaxsss import _config  # noqa: F401  (enables float64 and the compilation cache before anything else)
+from jaxsss._config import compilation_cache_dir, enable_compilation_cache
 from jaxsss.data import MATERIAL_TABLES, MeasuredMaterial, list_materials, material, material_medium
 from jaxsss.fresnel import F_DR_METHODS, A_coefficient, F_dr, F_dr_exact, F_dr_poly, F_dt, fresnel_reflectance
 from jaxsss.medium import Medium
@@ -61,9 +62,11 @@ __all__ = [
     "blend_profiles",
     "blend_weights",
     "blended_exitance",
+    "compilation_cache_dir",
     "dipole_depths",
     "dipole_exitance",
     "dipole_profile",
+    "enable_compilation_cache",
     "fresnel_reflectance",
     "from_rd_ld",
     "invert_rd",

@@ -1,9 +1,62 @@
-"""Process-wide numerics: float64 by default (DESIGN.md, "Precision").
+"""Process-wide JAX settings: float64 by default and a persistent compilation cache.
 
-Importing :mod:`jaxsss` enables ``jax_enable_x64``. Float32 still works: pass float32 arrays explicitly; the
-documented float32 error bounds are in ``docs/architecture.md`` and checked by ``tests/test_stability.py``.
+Precision (DESIGN.md, "Precision"): importing :mod:`jaxsss` enables ``jax_enable_x64``. Float32 still works: pass
+float32 arrays explicitly; the documented float32 error bounds are in ``docs/architecture.md`` and checked by
+``tests/test_stability.py``.
+
+Compilation cache: a fit, a Monte Carlo run or a render compiles its XLA programs once per process, which costs
+seconds; JAX's persistent cache stores them on disk so that the next process loads them instead. It is on by
+default in ``$XDG_CACHE_HOME/jaxsss/jax`` (``~/.cache/jaxsss/jax``). The environment variable
+``JAXSSS_COMPILATION_CACHE`` chooses another directory, or turns the cache off with ``0``, ``off``, ``false`` or
+``no``. A cache directory that the user has already given JAX (``JAX_COMPILATION_CACHE_DIR`` or
+``jax.config.update("jax_compilation_cache_dir", ...)`` before importing jaxsss) is left as it is.
 """
+
+from __future__ import annotations
+
+import os
+from pathlib import Path
 
 import jax
 
 jax.config.update("jax_enable_x64", True)
+
+CACHE_ENV = "JAXSSS_COMPILATION_CACHE"
+"""Environment variable: a directory for the compilation cache, or 0/off/false/no to disable it."""
+
+_OFF = {"0", "off", "false", "no", "none", ""}
+MIN_COMPILE_SECONDS = 0.05
+"""Programs that compile faster than this are not written to the cache (loading them would not pay)."""
+
+
+def compilation_cache_dir() -> Path | None:
+    """The directory jaxsss asks JAX to cache compiled programs in, or None when the cache is turned off."""
+    value = os.environ.get(CACHE_ENV)
+    if value is not None:
+        return None if value.strip().lower() in _OFF else Path(value).expanduser()
+    base = os.environ.get("XDG_CACHE_HOME") or Path.home() / ".cache"
+    return Path(base) / "jaxsss" / "jax"
+
+
+def enable_compilation_cache(path: str | os.PathLike | None = None) -> Path | None:
+    """Turn on JAX's persistent compilation cache in ``path`` (default :func:`compilation_cache_dir`).
+
+    Returns the directory in use, or None when the cache is off (``JAXSSS_COMPILATION_CACHE=0``) or the directory
+    cannot be created (a read-only home, say: the cache is an optimisation, never a reason to fail).
+    """
+    if jax.config.jax_compilation_cache_dir and path is None:  # the user configured JAX directly
+        return Path(jax.config.jax_compilation_cache_dir)
+    directory = Path(path) if path is not None else compilation_cache_dir()
+    if directory is None:
+        return None
+    try:
+        directory.mkdir(parents=True, exist_ok=True)
+    except OSError:
+        return None
+    jax.config.update("jax_compilation_cache_dir", str(directory))
+    jax.config.update("jax_persistent_cache_min_compile_time_secs", MIN_COMPILE_SECONDS)
+    jax.config.update("jax_persistent_cache_min_entry_size_bytes", 0)
+    return directory
+
+
+enable_compilation_cache()
