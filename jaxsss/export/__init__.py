@@ -1,0 +1,17 @@
+"""Export a jaxsss scene to production and reference renderers, and compare their images with jaxsss's.
+
+- :mod:`jaxsss.export.mitsuba`: a Mitsuba 3 scene dict (render in-process) and an XML + PLY export; the object
+  coverage mask Mitsuba sees.
+- :mod:`jaxsss.export.pbrt`: a pbrt-v4 ``.pbrt`` file with the ``subsurface`` material.
+- :mod:`jaxsss.export.compare`: per-pixel error of a linear image against a reference (lit pixels, the terminator
+  band, summed radiance) and the pixel masks it needs from the scene geometry.
+- :mod:`jaxsss.export.support`: what an exporter can represent; everything else is refused with an
+  :class:`ExportError` naming the scene key.
+
+``mitsuba`` is an optional dependency (``pip install jaxsss[validate]``); it is imported only when a Mitsuba scene
+is built or rendered, never by ``import jaxsss.export``.
+"""
+
+from jaxsss.export.support import TARGETS, ExportError, check_exportable
+
+__all__ = ["TARGETS", "ExportError", "check_exportable"]

@@ -1,0 +1,148 @@
+"""Per-pixel comparison of a linear radiance image against a reference, and the pixel masks it needs.
+
+Metrics (per channel, on ``(H, W, 3)`` linear radiance images of the same camera):
+
+- ``mare_lit``: mean absolute relative error ``|test - ref| / ref`` over *lit* pixels: fully covered by the
+  translucent object and with reference radiance above ``lit_fraction`` (1%) of the channel's peak over covered
+  pixels.
+- ``mare_band``: the same over the lit pixels of the *terminator band*, where the cosine between the surface normal
+  and the direction to a light lies in ``[-0.1, 0.1]`` (any light), computed from the geometry at the pixel centre.
+- ``sum_ratio``: summed test radiance over summed reference radiance, over fully covered pixels.
+
+"Fully covered" means Mitsuba's coverage (or any other box-filtered mask) is 1 within ``coverage_tol`` and jaxsss's
+pixel-centre camera ray hits the object: silhouette pixels are left out because jaxsss at one sample per pixel
+point-samples them while a path tracer averages them.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from typing import NamedTuple
+
+import numpy as np
+
+from jaxsss.render.camera import camera_rays
+from jaxsss.render.rays import OBJECT_TRANSLUCENT, SceneGeometry
+
+__all__ = ["BAND_COS", "LIT_FRACTION", "PixelGeometry", "compare_images", "jaxsss_coverage", "pixel_geometry",
+           "error_map"]
+
+BAND_COS = 0.1
+"""The terminator band is ``|cos(normal, to light)| <= BAND_COS``."""
+LIT_FRACTION = 0.01
+"""Lit pixels have reference radiance above this fraction of the channel's peak."""
+
+
+class PixelGeometry(NamedTuple):
+    """What the metrics need from the scene at each pixel centre (``(H, W)`` image).
+
+    Attributes:
+        hit: ``(H, W)`` bool: the pixel-centre ray's first hit is the translucent object.
+        cos: ``(H, W, L)`` cosine between the shading normal and the direction to each light (NaN off the object).
+        coverage: ``(H, W)`` fraction of ``sub`` x jittered rays per pixel whose first hit is the object.
+    """
+
+    hit: np.ndarray
+    cos: np.ndarray
+    coverage: np.ndarray
+
+
+def _geometry(scene) -> SceneGeometry:
+    return SceneGeometry(scene.mesh, [o.mesh for o in scene.occluders])
+
+
+def jaxsss_coverage(scene, spp: int = 64, seed: int = 0, geometry=None) -> np.ndarray:
+    """``(H, W)`` fraction of each pixel covered by the translucent object, from ``spp`` stratified jittered camera
+    rays per pixel (jaxsss's camera, :func:`jaxsss.render.camera.camera_rays`) and their first hits."""
+    geometry = geometry or _geometry(scene)
+    rays = camera_rays(dataclasses.replace(scene.camera, spp=int(spp)), seed=seed)
+    hits = geometry.first_hit(rays.origins, rays.directions)
+    h, w = rays.shape
+    on = (hits.obj == OBJECT_TRANSLUCENT).astype(np.float64)
+    return np.bincount(rays.pixel, weights=on, minlength=h * w).reshape(h, w) / rays.spp
+
+
+def pixel_geometry(scene, coverage_spp: int = 64) -> PixelGeometry:
+    """Pixel-centre hits, light cosines and jaxsss's coverage for ``scene``'s camera."""
+    geometry = _geometry(scene)
+    rays = camera_rays(dataclasses.replace(scene.camera, spp=1))
+    hits = geometry.first_hit(rays.origins, rays.directions)
+    h, w = rays.shape
+    on = hits.obj == OBJECT_TRANSLUCENT
+    cos = np.full((h * w, len(scene.lights)), np.nan)
+    if on.any():
+        idx = np.flatnonzero(on)
+        p = hits.position[idx]
+        n = geometry.shading_normals(hits.face[idx], p)
+        for k, light in enumerate(scene.lights):
+            if light.kind == "directional":
+                to = np.broadcast_to(-np.asarray(light.direction, dtype=np.float64), p.shape)
+            else:
+                to = np.asarray(light.position, dtype=np.float64) - p
+                to = to / np.linalg.norm(to, axis=1, keepdims=True)
+            cos[idx, k] = np.einsum("ij,ij->i", n, to)
+    return PixelGeometry(on.reshape(h, w), cos.reshape(h, w, -1), jaxsss_coverage(scene, coverage_spp,
+                                                                                  geometry=geometry))
+
+
+def _masks(ref: np.ndarray, pixels: PixelGeometry, coverage, coverage_tol: float, lit_fraction: float,
+           band_cos: float):
+    cov = pixels.coverage if coverage is None else np.asarray(coverage, dtype=np.float64)
+    covered = pixels.hit & (cov >= 1.0 - coverage_tol)
+    if not covered.any():
+        raise ValueError("no pixel is fully covered by the object: nothing to compare")
+    peak = np.max(np.where(covered[..., None], ref, -np.inf), axis=(0, 1))  # (C,)
+    lit = covered[..., None] & (ref > lit_fraction * peak)
+    with np.errstate(invalid="ignore"):
+        band_any = np.any(np.abs(pixels.cos) <= band_cos, axis=-1)
+    band = lit & band_any[..., None]
+    return covered, lit, band
+
+
+def compare_images(test: np.ndarray, ref: np.ndarray, pixels: PixelGeometry, *, coverage=None,
+                   coverage_tol: float = 1e-3, lit_fraction: float = LIT_FRACTION, band_cos: float = BAND_COS) -> dict:
+    """Error of ``test`` against ``ref`` (both ``(H, W, C)`` linear radiance), per channel.
+
+    Args:
+        test, ref: images of the same camera, W/(mm^2 sr).
+        pixels: :func:`pixel_geometry` of the scene.
+        coverage: optional ``(H, W)`` box-filtered coverage (e.g. :func:`jaxsss.export.mitsuba.object_coverage`);
+            default jaxsss's own (``pixels.coverage``).
+        coverage_tol: a pixel is fully covered when its coverage is at least ``1 - coverage_tol``.
+        lit_fraction, band_cos: see the module docstring.
+
+    Returns:
+        ``{"mare_lit", "mare_band", "sum_ratio", "bias_lit", "n_lit", "n_band", "n_covered"}``; the first four are
+        lists of ``C`` floats (``bias_lit`` is the mean signed relative error ``(test - ref) / ref`` over lit pixels;
+        ``mare_band`` is NaN for a channel without band pixels).
+    """
+    test, ref = np.asarray(test, dtype=np.float64), np.asarray(ref, dtype=np.float64)
+    if test.shape != ref.shape or test.ndim != 3:
+        raise ValueError(f"test {test.shape} and ref {ref.shape}: allowed: the same (H, W, C)")
+    if ref.shape[:2] != pixels.hit.shape:
+        raise ValueError(f"images are {ref.shape[:2]} but the pixel geometry is {pixels.hit.shape}; allowed: equal")
+    covered, lit, band = _masks(ref, pixels, coverage, coverage_tol, lit_fraction, band_cos)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        rel = (test - ref) / ref
+    out = {"mare_lit": [], "mare_band": [], "bias_lit": [], "sum_ratio": [], "n_lit": [], "n_band": []}
+    for c in range(ref.shape[-1]):
+        r_lit, r_band = rel[..., c][lit[..., c]], rel[..., c][band[..., c]]
+        out["mare_lit"].append(float(np.mean(np.abs(r_lit))))
+        out["bias_lit"].append(float(np.mean(r_lit)))
+        out["mare_band"].append(float(np.mean(np.abs(r_band))) if r_band.size else float("nan"))
+        out["sum_ratio"].append(float(test[..., c][covered].sum() / ref[..., c][covered].sum()))
+        out["n_lit"].append(int(lit[..., c].sum()))
+        out["n_band"].append(int(band[..., c].sum()))
+    out["n_covered"] = int(covered.sum())
+    return out
+
+
+def error_map(test: np.ndarray, ref: np.ndarray, pixels: PixelGeometry, *, coverage=None,
+              coverage_tol: float = 1e-3) -> np.ndarray:
+    """``(H, W, C)`` signed relative error ``(test - ref) / ref`` on fully covered pixels, NaN elsewhere."""
+    test, ref = np.asarray(test, dtype=np.float64), np.asarray(ref, dtype=np.float64)
+    cov = pixels.coverage if coverage is None else np.asarray(coverage, dtype=np.float64)
+    covered = pixels.hit & (cov >= 1.0 - coverage_tol)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        rel = (test - ref) / ref
+    return np.where(covered[..., None] & (ref > 0), rel, np.nan)

@@ -1,0 +1,59 @@
+"""Image metrics (jaxsss.export.compare) on known images and the sphere's known geometry."""
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from jaxsss.export.compare import compare_images, error_map, pixel_geometry
+from jaxsss.render import load_scene
+
+REFERENCES = Path(__file__).parent / "references"
+
+
+@pytest.fixture(scope="module")
+def sphere():
+    scene = load_scene(REFERENCES / "skin1_sphere.toml")
+    return scene, pixel_geometry(scene, coverage_spp=16)
+
+
+def test_known_errors(sphere):
+    scene, px = sphere
+    rng = np.random.default_rng(0)
+    ref = np.where(px.hit[..., None], 1.0 + rng.random((64, 64, 3)), 0.0)
+    same = compare_images(ref, ref, px)
+    assert same["mare_lit"] == [0.0] * 3 and same["sum_ratio"] == [1.0] * 3
+    m = compare_images(1.1 * ref, ref, px)
+    np.testing.assert_allclose(m["mare_lit"], 0.1, rtol=1e-12)
+    np.testing.assert_allclose(m["mare_band"], 0.1, rtol=1e-12)
+    np.testing.assert_allclose(m["bias_lit"], 0.1, rtol=1e-12)
+    np.testing.assert_allclose(m["sum_ratio"], 1.1, rtol=1e-12)
+    # Errors confined to the silhouette (partly covered pixels) are not counted.
+    edge = px.hit & (px.coverage < 1.0)
+    assert edge.any()
+    assert compare_images(np.where(edge[..., None], 5.0 * ref, ref), ref, px)["mare_lit"] == [0.0] * 3
+
+
+def test_lit_threshold_and_band(sphere):
+    scene, px = sphere
+    # Radiance = max(cos to the light, 0) + 0.005: dark side below 1% of the peak, so not lit.
+    cos = px.cos[..., 0]
+    ref = np.repeat(np.where(px.hit, np.clip(np.nan_to_num(cos), 0.0, None) + 0.005, 0.0)[..., None], 3, axis=-1)
+    m = compare_images(2.0 * ref, ref, px)
+    covered = px.hit & (px.coverage >= 1.0 - 1e-3)
+    assert m["n_covered"] == covered.sum()
+    assert m["n_lit"][0] == (covered & (ref[..., 0] > 0.01 * ref[..., 0][covered].max())).sum()
+    assert m["n_lit"][0] < m["n_covered"]
+    band = covered & (np.abs(cos) <= 0.1) & (ref[..., 0] > 0.01 * ref[..., 0][covered].max())
+    assert m["n_band"][0] == band.sum() > 10
+    # The sphere's terminator is a great circle: the band pixels' cosines are small by construction.
+    assert np.all(np.abs(cos[band]) <= 0.1)
+
+
+def test_bad_input(sphere):
+    _, px = sphere
+    with pytest.raises(ValueError, match=r"test \(64, 64, 3\) and ref \(64, 63, 3\)"):
+        compare_images(np.ones((64, 64, 3)), np.ones((64, 63, 3)), px)
+    with pytest.raises(ValueError, match="pixel geometry is"):
+        compare_images(np.ones((8, 8, 3)), np.ones((8, 8, 3)), px)
+    assert np.isnan(error_map(np.ones((64, 64, 3)), np.ones((64, 64, 3)), px)[0, 0]).all()
