@@ -24,11 +24,13 @@ import numpy as np
 from jaxsss.render.camera import camera_rays
 from jaxsss.render.rays import OBJECT_TRANSLUCENT, SceneGeometry
 
-__all__ = ["BAND_COS", "LIT_FRACTION", "PixelGeometry", "compare_images", "jaxsss_coverage", "pixel_geometry",
-           "error_map"]
+__all__ = ["BAND_COS", "COS_BINS", "LIT_FRACTION", "PixelGeometry", "compare_images", "error_by_cos", "error_map",
+           "jaxsss_coverage", "pixel_geometry"]
 
 BAND_COS = 0.1
 """The terminator band is ``|cos(normal, to light)| <= BAND_COS``."""
+COS_BINS = (-0.3, -0.1, 0.1, 0.3, 0.5, 0.7, 0.85, 1.0)
+"""Edges of the bins of cos(normal, to the light) in :func:`error_by_cos`."""
 LIT_FRACTION = 0.01
 """Lit pixels have reference radiance above this fraction of the channel's peak."""
 
@@ -146,3 +148,30 @@ def error_map(test: np.ndarray, ref: np.ndarray, pixels: PixelGeometry, *, cover
     with np.errstate(divide="ignore", invalid="ignore"):
         rel = (test - ref) / ref
     return np.where(covered[..., None] & (ref > 0), rel, np.nan)
+
+
+def error_by_cos(test: np.ndarray, ref: np.ndarray, pixels: PixelGeometry, *, light: int = 0, coverage=None,
+                 coverage_tol: float = 1e-3, lit_fraction: float = LIT_FRACTION, edges=COS_BINS) -> list[dict]:
+    """Where the error is: the mean signed relative error ``(test - ref) / ref`` per channel over lit, fully covered
+    pixels, in bins of the cosine between the normal and the direction to light ``light`` (``edges``).
+
+    Returns:
+        One dict per bin: ``{"cos": [lo, hi], "n": pixels, "bias": [C floats], "mare": [C floats]}`` (NaN where a
+        bin is empty for a channel).
+    """
+    test, ref = np.asarray(test, dtype=np.float64), np.asarray(ref, dtype=np.float64)
+    _, lit, _ = _masks(ref, pixels, coverage, coverage_tol, lit_fraction, BAND_COS)
+    cos = pixels.cos[..., light]
+    with np.errstate(divide="ignore", invalid="ignore"):
+        rel = (test - ref) / ref
+    out = []
+    for lo, hi in zip(edges[:-1], edges[1:]):
+        in_bin = (cos >= lo) & (cos < hi) if hi < edges[-1] else (cos >= lo) & (cos <= hi)
+        bias, mare, n = [], [], 0
+        for c in range(ref.shape[-1]):
+            r = rel[..., c][lit[..., c] & in_bin]
+            n = max(n, r.size)
+            bias.append(float(np.mean(r)) if r.size else float("nan"))
+            mare.append(float(np.mean(np.abs(r))) if r.size else float("nan"))
+        out.append({"cos": [float(lo), float(hi)], "n": int(n), "bias": bias, "mare": mare})
+    return out

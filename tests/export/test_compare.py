@@ -5,7 +5,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from jaxsss.export.compare import compare_images, error_map, pixel_geometry
+from jaxsss.export.compare import COS_BINS, compare_images, error_by_cos, error_map, pixel_geometry
 from jaxsss.render import load_scene
 
 REFERENCES = Path(__file__).parent / "references"
@@ -57,3 +57,19 @@ def test_bad_input(sphere):
     with pytest.raises(ValueError, match="pixel geometry is"):
         compare_images(np.ones((8, 8, 3)), np.ones((8, 8, 3)), px)
     assert np.isnan(error_map(np.ones((64, 64, 3)), np.ones((64, 64, 3)), px)[0, 0]).all()
+
+
+def test_error_by_cos_locates_a_planted_error(sphere):
+    """20% too bright where cos > 0.7, exact elsewhere: only the bins above 0.7 show it."""
+    _, px = sphere
+    cos = np.nan_to_num(px.cos[..., 0], nan=-1.0)
+    ref = np.repeat(np.where(px.hit, 1.0, 0.0)[..., None], 3, axis=-1)
+    test = ref * np.where(cos > 0.7, 1.2, 1.0)[..., None]
+    bins = error_by_cos(test, ref, px)
+    assert [b["cos"] for b in bins] == [list(p) for p in zip(COS_BINS[:-1], COS_BINS[1:])]
+    for b in bins:
+        if b["n"] == 0:
+            continue
+        expected = 0.2 if b["cos"][0] >= 0.7 else 0.0
+        np.testing.assert_allclose(b["bias"], expected, atol=1e-12)
+    assert sum(b["n"] for b in bins if b["cos"][0] >= 0.7) > 50

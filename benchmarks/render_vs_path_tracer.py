@@ -1,0 +1,221 @@
+"""jaxsss's renderer against a real path tracer (Mitsuba 3's volumetric path tracer): error against seconds.
+
+What is measured. For each reference scene (``tests/export/references/*.toml``: index-matched spheres, one point
+light) a high-spp Mitsuba reference is committed next to the scene (``<name>.npz``: ``image`` (H, W, 3) linear
+radiance and ``coverage`` (H, W), Mitsuba's object mask; ``<name>.json``: command, variant, spp, seeds, Mitsuba
+version, seconds, and the reference's own noise). Against it:
+
+- jaxsss: ``jaxsss.render.render(scene, method=m)`` for ``hierarchical`` (eps 0.05 and 0.2; quick: 0.05) and
+  ``direct``: ``seconds`` is the whole render without JAX compilation (``compile_seconds``, from jax.monitoring);
+- Mitsuba ``volpathmis`` (the scene exported by :mod:`jaxsss.export.mitsuba`) at increasing spp with seeds that
+  differ from the reference's: ``seconds`` is ``mi.render`` after one warm-up render per scene at the smallest spp
+  (the warm-up's extra time, the LLVM kernel compilation, is that row's ``compile_seconds``; the kernels are
+  reused at every spp); scene loading is apart (``load_seconds``).
+
+Error (``jaxsss.export.compare``): ``error`` = the largest over R, G, B of the mean absolute relative error over lit,
+fully covered pixels (``mare_lit``); rows also carry ``mare_lit``, ``mare_band`` (terminator band, |cos| <= 0.1),
+``bias_lit`` and ``sum_ratio`` per channel. A Mitsuba row's error includes the reference's own noise
+(``reference_noise_mare`` in the summary, about 1/sqrt(ref_spp / spp) of it).
+
+Outputs: ``render_vs_path_tracer.json`` / ``.png`` (error against seconds) and ``render_vs_path_tracer_maps.png``
+(per scene: reference, jaxsss hierarchical, and its signed relative error per channel).
+
+``--references`` regenerates the references instead (slow: minutes per scene at ``REFERENCE_SPP`` with the LLVM
+variant; run it under ``nice``). Mitsuba runs with ``llvm_ad_rgb`` when ``DRJIT_LIBLLVM_PATH`` names a libLLVM
+(default here: Debian's libLLVM 19 if present), else ``scalar_rgb``.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import shlex
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+
+ROOT = Path(__file__).resolve().parents[1]
+REFERENCES = ROOT / "tests" / "export" / "references"
+NAME = "render_vs_path_tracer"
+SCENES = ("skin1_sphere", "g09_sphere")
+REFERENCE_SPP = {"skin1_sphere": 8192, "g09_sphere": 8192}
+REFERENCE_SEEDS = (0, 1)  # two halves, averaged; their difference measures the reference's noise
+LLVM_CANDIDATES = ("/usr/lib/x86_64-linux-gnu/libLLVM-19.so", "/usr/lib/x86_64-linux-gnu/libLLVM.so.19.1")
+ERROR_METRIC = "max over RGB of mean |relative error| over lit fully covered pixels vs the Mitsuba reference"
+CONFIG = {
+    "quick": dict(mitsuba_spp=(16, 64, 256), jaxsss=(("hierarchical", 0.05), ("direct", None))),
+    "full": dict(mitsuba_spp=(16, 64, 256, 1024, 4096),
+                 jaxsss=(("hierarchical", 0.05), ("hierarchical", 0.2), ("direct", None))),
+}
+
+
+def _llvm_env() -> None:
+    if "DRJIT_LIBLLVM_PATH" not in os.environ:
+        for cand in LLVM_CANDIDATES:
+            if Path(cand).is_file():
+                os.environ["DRJIT_LIBLLVM_PATH"] = cand
+                break
+
+
+def load_reference(name: str):
+    """``(scene, image (H, W, 3), coverage (H, W), sidecar dict)`` of a committed reference."""
+    from jaxsss.render import load_scene
+
+    data = np.load(REFERENCES / f"{name}.npz")
+    meta = json.loads((REFERENCES / f"{name}.json").read_text())
+    return (load_scene(REFERENCES / f"{name}.toml"), data["image"].astype(np.float64),
+            data["coverage"].astype(np.float64), meta)
+
+
+def make_reference(name: str) -> dict:
+    """Render and write ``<name>.npz`` and ``<name>.json`` (two half-spp renders with seeds :data:`REFERENCE_SEEDS`)."""
+    import mitsuba as mi
+
+    from jaxsss.export import mitsuba as xm
+    from jaxsss.export.compare import compare_images, pixel_geometry
+    from jaxsss.render import load_scene
+
+    scene = load_scene(REFERENCES / f"{name}.toml")
+    variant = xm.select_variant()
+    spp = REFERENCE_SPP[name]
+    halves = [xm.render_mitsuba(scene, spp=spp // 2, seed=s) for s in REFERENCE_SEEDS]
+    t0 = time.perf_counter()
+    coverage = xm.object_coverage(scene, spp=1024, seed=7)
+    coverage_seconds = time.perf_counter() - t0
+    image = 0.5 * (halves[0].image + halves[1].image)
+    # Noise of the average of two halves: half the mean |relative difference| between them (each half has twice
+    # the variance of the average, and their difference twice that of one half).
+    noise = compare_images(halves[0].image, halves[1].image, pixel_geometry(scene), coverage=coverage)
+    meta = {
+        "scene": f"{name}.toml",
+        "command": f"nice -n 10 python {shlex.join(['benchmarks/render_vs_path_tracer.py', '--references'])}",
+        "renderer": "mitsuba", "mitsuba_version": mi.__version__, "variant": variant,
+        "integrator": "volpathmis (jaxsss.export.mitsuba.scene_dict)", "spp": spp,
+        "seeds": list(REFERENCE_SEEDS), "spp_per_seed": spp // 2,
+        "seconds": sum(h.seconds for h in halves), "load_seconds": sum(h.load_seconds for h in halves),
+        "coverage_spp": 1024, "coverage_seconds": coverage_seconds,
+        "noise_mare_lit": [0.5 * v for v in noise["mare_lit"]],
+        "units": "image: linear radiance W/(mm^2 sr), float32; coverage: fraction of each pixel on the object",
+        "date": time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime()), "load_average_1min": os.getloadavg()[0],
+    }
+    np.savez_compressed(REFERENCES / f"{name}.npz", image=image.astype(np.float32),
+                        coverage=coverage.astype(np.float32))
+    (REFERENCES / f"{name}.json").write_text(json.dumps(meta, indent=1) + "\n")
+    return meta
+
+
+def _jaxsss_rows(name, scene, ref, coverage, pixels, settings):
+    from benchmarks._harness import make_row
+    from benchmarks.render_eps import compile_clock
+    from jaxsss.export.compare import compare_images
+    from jaxsss.render import render
+
+    rows, images = [], {}
+    for method, eps in settings:
+        kwargs = {"method": method} if eps is None else {"method": method, "eps": eps}
+        with compile_clock() as c:
+            result = render(scene, **kwargs)
+        m = compare_images(result.image, ref, pixels, coverage=coverage)
+        label = method if eps is None else f"{method} eps={eps:g}"
+        images[label] = result.image
+        rows.append(make_row(NAME, f"{name}: jaxsss {method}", label if eps is not None else method,
+                             max(m["mare_lit"]), ERROR_METRIC, max(c["wall"] - c["compile"], 1e-9), c["compile"],
+                             scene=name, renderer="jaxsss", **m))
+    return rows, images
+
+
+def _mitsuba_rows(name, scene, ref, coverage, pixels, spps):
+    from benchmarks._harness import make_row
+    from jaxsss.export import mitsuba as xm
+    from jaxsss.export.compare import compare_images
+
+    rows = []
+    warm = xm.render_mitsuba(scene, spp=spps[0], seed=99)  # compiles the LLVM kernels (reused for every spp)
+    for spp in spps:
+        r = xm.render_mitsuba(scene, spp=spp, seed=1000 + spp)
+        m = compare_images(r.image, ref, pixels, coverage=coverage)
+        compile_s = max(warm.seconds - r.seconds, 0.0) if spp == spps[0] else None
+        rows.append(make_row(NAME, f"{name}: mitsuba {r.variant}", f"{spp} spp", max(m["mare_lit"]), ERROR_METRIC,
+                             r.seconds, compile_s, scene=name, renderer="mitsuba", spp=spp,
+                             load_seconds=r.load_seconds, **m))
+    return rows
+
+
+def _error_maps(panels, path):
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, axes = plt.subplots(len(panels), 5, figsize=(13, 2.8 * len(panels)), squeeze=False)
+    for row, (name, ref, test, emap) in zip(axes, panels):
+        peak = np.nanmax(ref)
+        row[0].imshow(np.clip(ref / peak, 0, 1) ** (1 / 2.2))
+        row[0].set_title(f"{name}: Mitsuba reference", fontsize=8)
+        row[1].imshow(np.clip(test / peak, 0, 1) ** (1 / 2.2))
+        row[1].set_title("jaxsss hierarchical", fontsize=8)
+        for c in range(3):
+            im = row[2 + c].imshow(emap[..., c], cmap="RdBu_r", vmin=-0.5, vmax=0.5)
+            row[2 + c].set_title(f"(jaxsss - ref) / ref, {'RGB'[c]}", fontsize=8)
+        fig.colorbar(im, ax=row[-1], fraction=0.046)
+        for ax in row:
+            ax.set_xticks([])
+            ax.set_yticks([])
+    fig.tight_layout()
+    fig.savefig(path, dpi=100)
+    plt.close(fig)
+    return path
+
+
+def main(argv=None) -> int:
+    _llvm_env()
+    if argv is None:
+        argv = sys.argv[1:]
+    if "--references" in argv:
+        for name in [a for a in argv if a in SCENES] or SCENES:
+            meta = make_reference(name)
+            print(f"{name}: {meta['spp']} spp, {meta['variant']}, {meta['seconds']:.1f} s, "
+                  f"noise {np.round(meta['noise_mare_lit'], 4).tolist()}")
+        return 0
+    from benchmarks._harness import parse_args, write_results
+    from jaxsss.export import mitsuba as xm
+    from jaxsss.export.compare import error_by_cos, error_map, pixel_geometry
+
+    args = parse_args(argv, __doc__.splitlines()[0])
+    cfg = CONFIG["quick" if args.quick else "full"]
+    variant = xm.select_variant()
+    rows, panels, summary = [], [], {"mitsuba_variant": variant}
+    for name in SCENES:
+        scene, ref, coverage, meta = load_reference(name)
+        pixels = pixel_geometry(scene)
+        jrows, images = _jaxsss_rows(name, scene, ref, coverage, pixels, cfg["jaxsss"])
+        rows += jrows + _mitsuba_rows(name, scene, ref, coverage, pixels, cfg["mitsuba_spp"])
+        hier = images[next(k for k in images if k.startswith("hierarchical"))]
+        panels.append((name, ref, hier, error_map(hier, ref, pixels, coverage=coverage)))
+        summary[name] = {"reference_spp": meta["spp"], "reference_seconds": meta["seconds"],
+                         "reference_noise_mare": meta["noise_mare_lit"],
+                         "jaxsss_error_by_cos": {label: error_by_cos(img, ref, pixels, coverage=coverage)
+                                                 for label, img in images.items()}}
+    notes = [f"Mitsuba {variant}; references: tests/export/references/*.json",
+             "seconds: jaxsss whole render minus JAX compilation; Mitsuba mi.render after one warm-up render per scene"]
+    json_path, png_path = write_results(NAME + args.tag, rows, args.out, quick=args.quick, summary=summary,
+                                        notes=notes, title="jaxsss vs Mitsuba volpathmis: error vs seconds")
+    maps = _error_maps(panels, Path(args.out) / f"{NAME}{args.tag}_maps.png")
+    for r in rows:
+        print(f"{r['method']:40s} {str(r['setting']):22s} mare_lit {np.round(r['mare_lit'], 3).tolist()} "
+              f"band {np.round(r['mare_band'], 3).tolist()} sum {np.round(r['sum_ratio'], 3).tolist()} "
+              f"{r['seconds']:.2f} s (compile {r['compile_seconds'] or 0:.2f})")
+    for name in SCENES:
+        for label, bins in summary[name]["jaxsss_error_by_cos"].items():
+            print(f"{name} jaxsss {label}: signed relative error by cos(normal, to light)")
+            for b in bins:
+                print(f"  cos [{b['cos'][0]:+.2f}, {b['cos'][1]:+.2f}] n={b['n']:4d} bias "
+                      f"{np.round(b['bias'], 3).tolist()} mare {np.round(b['mare'], 3).tolist()}")
+    print(f"wrote {json_path}, {png_path}, {maps}")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
