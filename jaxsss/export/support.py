@@ -77,13 +77,13 @@ def medium_arrays(medium) -> dict[str, np.ndarray | float]:
     Raises:
         ExportError: the medium is not three channels (R, G, B).
     """
-    sigma_a = np.broadcast_to(np.asarray(medium.sigma_a, dtype=np.float64), (3,)).copy() \
-        if np.asarray(medium.sigma_a).size in (1, 3) else None
-    sigma_sp = np.broadcast_to(np.asarray(medium.sigma_s_prime, dtype=np.float64), (3,)).copy() \
-        if np.asarray(medium.sigma_s_prime).size in (1, 3) else None
-    if sigma_a is None or sigma_sp is None:
-        raise ExportError("material", f"sigma_a has shape {np.shape(medium.sigma_a)} and sigma_s_prime "
-                          f"{np.shape(medium.sigma_s_prime)}: the exporters write RGB, allowed: 1 or 3 channels")
+    def rgb(value, name):
+        arr = np.asarray(value, dtype=np.float64).reshape(-1)
+        if arr.size not in (1, 3):
+            raise ExportError(f"material.{name}", f"has {arr.size} channels: the exporters write RGB; allowed: 1 or 3")
+        return np.broadcast_to(arr, (3,)).copy()
+
+    sigma_a, sigma_sp = rgb(medium.sigma_a, "sigma_a"), rgb(medium.sigma_s_prime, "sigma_s_prime")
     g = 0.0 if medium.g is None else float(np.asarray(medium.g))
     # sigma_s = sigma_s' / (1 - g): the scattering coefficient of the Henyey-Greenstein medium.
     sigma_s = sigma_sp / (1.0 - g)

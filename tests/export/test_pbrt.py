@@ -89,3 +89,18 @@ def test_refuses_blockers(tmp_path):
     with pytest.raises(ExportError, match=r"^\[blocker\[0\]\] blockers .* cannot be exported to pbrt-v4"):
         pbrt.write_scene(scene_with(scene, blockers=(Blocker(scene.mesh, "x"),)), tmp_path)
     assert not (tmp_path / "scene.pbrt").exists()
+
+
+def test_refuses_spectral_media():
+    """The exporters write RGB: a 4-channel medium is refused, naming the key."""
+    import dataclasses
+
+    from jaxsss.export.support import medium_arrays
+    from jaxsss.medium import Medium
+
+    with pytest.raises(ExportError, match=r"^\[material.sigma_a\] has 4 channels"):
+        medium_arrays(Medium(np.full(4, 0.1), np.full(4, 1.0), 1.3, None))
+    scene = load_scene(REFERENCES / "skin1_sphere.toml")
+    m = medium_arrays(dataclasses.replace(scene.material.medium, sigma_a=np.asarray(0.1)))
+    np.testing.assert_array_equal(m["sigma_a"], [0.1, 0.1, 0.1])
+    assert m["g"] == 0.0 and m["eta"] == 1.0
