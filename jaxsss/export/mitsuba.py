@@ -8,7 +8,9 @@ Conventions matched (units: mm, so Mitsuba's unitless lengths are mm and its rad
 - **Boundary.** ``null`` BSDF when ``eta = 1`` (index-matched), else ``dielectric`` with ``int_ior = eta`` and
   ``ext_ior = 1`` (eta is n_inside / n_outside); ``roughdielectric`` (GGX, ``alpha = specular_roughness``) when the
   material has a specular roughness. A smooth dielectric cannot be connected to a point, spot or directional light
-  by a path tracer: such an export renders the object black in Mitsuba, and :func:`scene_dict` warns.
+  by a path tracer: such an export renders the object black in Mitsuba, and :func:`scene_dict` warns. It also
+  warns for a mesh that is not watertight (the built-in teapot is not: 1616 open edges), whose medium is ill
+  defined in a path tracer.
 - **Integrator.** ``volpathmis``, unlimited depth (``max_depth = -1``); Russian roulette starts after
   :func:`rr_depth` bounces: Mitsuba caps survival at 0.95 per bounce, so for a single-scattering albedo above 0.95 it
   starts once albedo^n < 0.95 (unbiased either way; late only to save variance).
@@ -199,6 +201,10 @@ def scene_dict(scene, mesh_files: dict[str, str], *, spp: int = DEFAULT_SPP, see
         albedo = np.divide(m["sigma_s"], m["sigma_t"], out=np.zeros(3), where=m["sigma_t"] > 0)
         d["integrator"] = {"type": "volpathmis", "max_depth": -1, "rr_depth": rr_depth(float(albedo.max())),
                            "hide_emitters": False}
+        if not scene.mesh.is_watertight:
+            warnings.warn(f"mesh ({scene.mesh_description}) is not watertight: Mitsuba's medium lives between the "
+                          "surface crossings of each path, so light leaks through the holes and the interior is ill "
+                          "defined; repair the mesh (the scene's require_watertight = true checks it)", stacklevel=2)
         if m["eta"] != 1.0 and any(light.kind in ("point", "spot", "directional") for light in scene.lights):
             warnings.warn(f"material.eta = {m['eta']:g}: a path tracer cannot connect a smooth dielectric boundary "
                           "to a point, spot or directional light; Mitsuba will render the object's subsurface "

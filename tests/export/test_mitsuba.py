@@ -132,6 +132,18 @@ def test_boundary_follows_eta():
         assert xm.scene_dict(rough, {"object": "x.ply"})["object"]["bsdf"]["type"] == "roughdielectric"
 
 
+def test_open_mesh_warns():
+    scene = parse_scene({
+        "mesh": {"builtin": "slab", "width": 10.0, "depth": 10.0, "thickness": 2.0},
+        "material": {"name": "skin1", "eta": 1.0},
+        "light": [{"type": "point", "position": [0.0, 0.0, 50.0], "intensity": 1.0}],
+        "camera": {"position": [0.0, -50.0, 20.0], "look_at": [0.0, 0.0, 0.0]},
+    })
+    holed = scene_with(scene, mesh=scene.mesh.submesh([np.arange(1, len(scene.mesh.faces))], append=True))
+    with pytest.warns(UserWarning, match="is not watertight"):
+        xm.scene_dict(holed, {"object": "x.ply"})
+
+
 def test_rr_depth():
     assert xm.rr_depth(0.5) == 5 and xm.rr_depth(0.95) == 5
     n = xm.rr_depth(0.999)
