@@ -12,7 +12,7 @@ import argparse
 import warnings
 from pathlib import Path
 
-from jaxsss.cli._common import UNITS_EPILOG, CLIError, print_json
+from jaxsss.cli._common import UNITS_EPILOG, CLIError, fmt, format_table, print_json
 
 NAME = "export"
 HELP = "export a scene file (TOML) to Mitsuba 3 (XML + PLY) or pbrt-v4 (.pbrt + PLY)"
@@ -41,6 +41,11 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
     p.add_argument("--spp", type=int, default=1024, metavar="N", help="samples per pixel written into the scene, "
                    ">= 1 (default 1024)")
     p.add_argument("--name", default="scene", help="file stem of the scene file (default: scene)")
+    p.add_argument("--burley", action="store_true",
+                   help="also fit Christensen-Burley normalized diffusion (Cycles, RenderMan) to the medium's "
+                   "transport profile and print its parameters per channel (albedo A, shape d in mm, searchlight "
+                   "mean free path in mm) and its error against transport (jaxsss.export.burley; needs a white "
+                   "Monte Carlo table for the medium's g and eta)")
     p.add_argument("--json", action="store_true", help="print one JSON object (files written, warnings)")
     p.set_defaults(run=run)
     return p
@@ -62,13 +67,26 @@ def run(args) -> int:
             path = mitsuba.write_scene(scene, args.out, spp=args.spp, name=args.name)
         else:
             path = pbrt.write_scene(scene, args.out, spp=args.spp, name=args.name)
+    burley = None
+    if args.burley:
+        from jaxsss.export.burley import burley_fit
+
+        fit = burley_fit(scene.material.medium)
+        burley = {k: (v.tolist() if hasattr(v, "tolist") else v) for k, v in fit._asdict().items()}
     files = [str(Path(args.out) / f"{OBJECT_ID}.ply")] + [str(Path(args.out) / f"occluder_{i}.ply")
                                                         for i in range(len(scene.occluders))]
     notes = [str(w.message) for w in caught]
     if args.json:
-        print_json({"target": args.to, "scene": str(path), "meshes": files, "warnings": notes})
+        print_json({"target": args.to, "scene": str(path), "meshes": files, "warnings": notes,
+                    **({"burley": burley} if burley is not None else {})})
         return 0
     for note in notes:
         print(f"warning: {note}")
     print(f"wrote {path} ({args.to}) and {len(files)} PLY mesh(es) in {args.out}")
+    if burley is not None:
+        print("Christensen-Burley normalized diffusion fitted to transport (per channel R, G, B):")
+        rows = [[name, *(fmt(v) for v in burley[key])] for name, key in
+                (("albedo A", "A"), ("shape d [mm]", "d"), ("mean free path [mm]", "mfp"),
+                 ("rel. L2 error of 2 pi r R(r)", "error_l2"), ("max rel. error, 0.1-5 l_d", "error_max"))]
+        print(format_table(["parameter", "R", "G", "B"], rows))
     return 0

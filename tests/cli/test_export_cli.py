@@ -29,6 +29,15 @@ def test_export_writes_scene_and_mesh(tmp_path, capsys, target, suffix):
     assert "32" in Path(doc["scene"]).read_text()
 
 
+def test_export_burley_report(tmp_path, capsys):
+    status, out = _run([SCENE, "--to", "pbrt-v4", "--out", tmp_path, "--burley", "--json"], capsys)
+    doc = json.loads(out)["burley"]
+    assert status == 0 and doc["g"] == 0.0 and doc["eta"] == 1.0
+    assert all(0 < a < 1 for a in doc["A"]) and all(d > 0 for d in doc["d"])
+    status, out = _run([SCENE, "--to", "pbrt-v4", "--out", tmp_path, "--burley"], capsys)
+    assert "Christensen-Burley" in out and "shape d [mm]" in out
+
+
 def test_export_refuses_what_it_cannot_represent(tmp_path, capsys):
     bad = tmp_path / "bg.toml"
     bad.write_text(SCENE.read_text() + "\n[output]\nbackground = 0.2\n")
