@@ -3,6 +3,9 @@
 - :mod:`jaxsss.export.mitsuba`: a Mitsuba 3 scene dict (render in-process) and an XML + PLY export; the object
   coverage mask Mitsuba sees.
 - :mod:`jaxsss.export.pbrt`: a pbrt-v4 ``.pbrt`` file with the ``subsurface`` material.
+- :mod:`jaxsss.export.burley`: Christensen-Burley normalized diffusion (Cycles, RenderMan) fitted to the medium's
+  transport profile, with its error against it.
+- :mod:`jaxsss.export.ply`: the PLY meshes both exporters reference (jaxsss's shading normals).
 - :mod:`jaxsss.export.compare`: per-pixel error of a linear image against a reference (lit pixels, the terminator
   band, summed radiance) and the pixel masks it needs from the scene geometry.
 - :mod:`jaxsss.export.support`: what an exporter can represent; everything else is refused with an
