@@ -191,3 +191,22 @@ def test_bad_files_name_the_file_and_line(tmp_path, edit, message):
 def test_unreadable_file(tmp_path):
     with pytest.raises(ProfileFileError, match="cannot read the file"):
         read_mco(tmp_path / "absent.mco")
+
+
+def test_an_mcml_profile_matches_white_monte_carlo_at_its_input_parameters():
+    # End to end through the reader's conventions (per incident photon, 1/mm^2, bin centres, standard errors), with
+    # no fit (the fit itself is benchmarks/mcml_fits.py: 0.0% / 0.1%): at MCML's input parameters the independent
+    # white Monte Carlo table for this (g, n) agrees with the file to its noise (mean z^2 0.93 measured beyond
+    # 0.1 l_u), while the dipole is far off (mean z^2 ~900).
+    import jaxsss
+    from jaxsss.mc import load_white_table, white_mc_profile
+
+    run = read_mco(shared_mcml_dir() / "halfspace_n133_g0.mco")
+    data, layer = run.to_profile(), run.layers[0]
+    beyond = data.r >= 0.1 / (layer.sigma_a + layer.sigma_s_prime)
+    model = np.asarray(white_mc_profile(data.r, layer.sigma_a, layer.sigma_s_prime, load_white_table(layer.g, run.eta)))
+    z2 = ((data.R - model) / data.R_stderr)[beyond] ** 2
+    assert 0.5 < np.mean(z2) < 1.5 and np.max(z2) < 30.0
+    medium = jaxsss.Medium(layer.sigma_a, layer.sigma_s_prime, run.eta)
+    dipole = (1 - jaxsss.fresnel_reflectance(run.eta, 1.0)) * np.asarray(jaxsss.dipole_profile(data.r, medium))
+    assert np.mean(((data.R - dipole) / data.R_stderr)[beyond] ** 2) > 100.0
