@@ -18,13 +18,10 @@ FIXTURE = Path(__file__).parent / "data" / "slab03mm_n133_g09.mco"
 
 
 def shared_mcml_dir() -> Path:
-    """``shared/reference/mcml`` in the nearest ancestor of the repository that has it."""
-    repo = Path(__file__).resolve().parents[2]
-    for parent in [repo, *repo.parents]:
-        candidate = parent / "shared" / "reference" / "mcml"
-        if candidate.is_dir():
-            return candidate
-    pytest.fail(f"shared/reference/mcml not found above {repo}: the MCML reference runs are part of the test data")
+    """``shared/reference/mcml`` in the nearest ancestor of the repository that has it (the benchmark's locator)."""
+    from benchmarks.mcml_fits import mcml_dir
+
+    return mcml_dir()
 
 
 def shared_runs():
