@@ -4,6 +4,9 @@ float32 within a stated distance of float64.
 Grid: alpha' in {1e-6, 1e-3, 0.5, 0.99, 1 - 1e-9} x sigma_t' in {1e-4, 1e-2, 1, 1e2, 1e4} /mm x
 eta in {0.5, 1, 1.0001, 1.3, 2.5} x r in {0, 1e-3, 1, 10, 1e4} l_d; slabs add thickness in
 {1e-4, 1e-2, 1, 10, 1e4} l_u (infinity is the dipole). Every model added to the core adds its rows here.
+sigma_a = 0 (alpha' = 1, l_d infinite) has its own rows: every forward model of the fitting registry (dipole,
+multipole, mc) with finite values and gradients that match one-sided differences, and Rd (value 1, d/d sigma_a
+truly -inf).
 
 Stated float32 tolerances (relative to float64, measured maxima in brackets):
 - dipole profile: 1e-5 wherever the float64 value exceeds 1e-30 (float32 underflows below ~1e-38) [1.3e-6];
