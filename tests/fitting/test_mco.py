@@ -207,3 +207,13 @@ def test_an_mcml_profile_matches_white_monte_carlo_at_its_input_parameters():
     medium = jaxsss.Medium(layer.sigma_a, layer.sigma_s_prime, run.eta)
     dipole = (1 - jaxsss.fresnel_reflectance(run.eta, 1.0)) * np.asarray(jaxsss.dipole_profile(data.r, medium))
     assert np.mean(((data.R - dipole) / data.R_stderr)[beyond] ** 2) > 100.0
+
+
+def test_jaxsss_fit_reports_a_bad_mco_file_in_one_line(capsys, tmp_path):
+    from tests.cli.runner import run_cli
+
+    path = _edit(tmp_path, lambda ls: ls[:300])
+    code, out, err = run_cli(capsys, "fit", path, "--eta", 1.33)
+    lines = err.strip().splitlines()
+    assert code == 2 and out == "" and len(lines) == 1, err
+    assert lines[0].startswith(f"jaxsss: error: {path}: line 300: block Tt_r ends after"), err
