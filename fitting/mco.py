@@ -312,7 +312,8 @@ def _parse_inparm(tokens, title: _Line, lines, path):
     if rest:
         raise ProfileFileError(f"{path}: line {rest[0][0]}: unexpected value {rest[0][1]!r} at the end of InParm "
                                f"({n_layers} layer(s) declared)")
-    return int(photons), float(dz) * _CM, float(dr) * _CM, int(nz), int(nr), int(na), tuple(layers), float(n_above), float(n_below)
+    return (int(photons), float(dz) * _CM, float(dr) * _CM, int(nz), int(nr), int(na), tuple(layers), float(n_above),
+            float(n_below))
 
 
 def read_mco(path) -> McoRun:

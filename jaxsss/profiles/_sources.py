@@ -33,7 +33,7 @@ _X2_MAX = 1e6
 
 @jax.custom_jvp
 def _damping(x2):
-    """``(1 + x) e^{-x}`` with ``x = sqrt(x2)``, ``x2 >= 0``, differentiable at ``x2 = 0`` (derivative ``-e^{-x}/2``)."""
+    """``(1 + x) e^{-x}``, ``x = sqrt(x2)``, ``x2 >= 0``; differentiable at ``x2 = 0`` (derivative ``-e^{-x}/2``)."""
     x = jnp.sqrt(x2)
     return (1.0 + x) * jnp.exp(-x)
 
