@@ -62,7 +62,7 @@ _BLOCKS = ("InParm", "RAT", "A_l", "A_z", "Rd_r", "Rd_a", "Tt_r", "Tt_a", "A_rz"
 _UNITS = {"A_l": "[-]", "A_z": "[1/cm]", "Rd_r": "[1/cm2]", "Rd_a": "[sr-1]", "Tt_r": "[1/cm2]", "Tt_a": "[sr-1]"}
 # Units written on the comment lines just above the 2-D blocks (MCML puts them there, not on the title line).
 _UNITS_ABOVE = {"A_rz": "[1/cm3]", "Rd_ra": "[1/(cm2sr)]", "Tt_ra": "[1/(cm2sr)]"}
-_SCALE = {"A_l": 1.0, "A_z": 1 / _CM, "Rd_r": 1 / _CM**2, "Rd_a": 1.0, "Tt_r": 1 / _CM**2, "Tt_a": 1.0,
+_SCALE = {"RAT": 1.0, "A_l": 1.0, "A_z": 1 / _CM, "Rd_r": 1 / _CM**2, "Rd_a": 1.0, "Tt_r": 1 / _CM**2, "Tt_a": 1.0,
           "A_rz": 1 / _CM**3, "Rd_ra": 1 / _CM**2, "Tt_ra": 1 / _CM**2}
 # A bracketed unit: ``[-]`` or one naming a length or solid angle (``[A[0][1]`` index comments are not units).
 _UNIT_RE = re.compile(r"\[(?:-|[^\]\[]*(?:cm|mm|sr|m)[^\]\[]*)\]")
@@ -194,7 +194,7 @@ class _Line(NamedTuple):
 
 
 def _lines(text: str):
-    """Non-blank lines with their number, the tokens before ``#`` and the comment after it."""
+    """Every line (``lines[i].no == i + 1``) with the tokens before ``#`` and the comment after it."""
     out = []
     for no, raw in enumerate(text.splitlines(), start=1):
         body, _, comment = raw.partition("#")
@@ -218,7 +218,7 @@ def _check(ok: bool, path, no: int, message: str) -> None:
 
 
 def _split_blocks(lines, path):
-    """``{block: (title line, [(line no, token), ...])}`` for the blocks after ``InParm``'s start, and the preamble."""
+    """``{block: (title line, [(line no, token), ...])}``: every token after a block's title belongs to it."""
     blocks, current, order = {}, None, []
     for line in lines:
         for token in line.tokens:
@@ -342,24 +342,19 @@ def read_mco(path) -> McoRun:
     title, tokens = _block(blocks, "InParm", lines, path)
     photons, dz, dr, nz, nr, na, layers, n_above, n_below = _parse_inparm(tokens, title, lines, path)
 
-    title, tokens = _block(blocks, "RAT", lines, path)
-    rat, extra = _take(tokens, 4, path, "RAT", title.no, "specular, Rd, A, Tt")
-    counts = {"A_l": len(layers), "A_z": nz, "Rd_r": nr, "Rd_a": na, "Tt_r": nr, "Tt_a": na,
+    counts = {"RAT": 4, "A_l": len(layers), "A_z": nz, "Rd_r": nr, "Rd_a": na, "Tt_r": nr, "Tt_a": na,
               "A_rz": nr * nz, "Rd_ra": nr * na, "Tt_ra": nr * na}
     arrays = {}
-    for name in ("RAT",) + tuple(counts):
+    for name, count in counts.items():
         title, tokens = _block(blocks, name, lines, path)
-        if name == "RAT":
-            values, extra = rat, extra
-        else:
-            if name in _UNITS:
-                _check_unit(title, _UNITS[name], path, name)
-            else:
-                above = [line for line in lines if title.no - 6 <= line.no < title.no and not line.tokens]
-                for line in above:
-                    if _UNIT_RE.search(line.comment):
-                        _check_unit(line, _UNITS_ABOVE[name], path, name)
-            values, extra = _take(tokens, counts[name], path, name, title.no, f"{counts[name]} values")
+        if name in _UNITS:
+            _check_unit(title, _UNITS[name], path, name)
+        elif name in _UNITS_ABOVE:
+            for line in lines[max(0, title.no - 7) : title.no - 1]:  # MCML's comment lines above the title
+                if not line.tokens and _UNIT_RE.search(line.comment):
+                    _check_unit(line, _UNITS_ABOVE[name], path, name)
+        what = "specular, Rd, A, Tt" if name == "RAT" else f"{count} values"
+        values, extra = _take(tokens, count, path, name, title.no, what)
         if extra:
             raise ProfileFileError(f"{path}: line {extra[0][0]}: unexpected value {extra[0][1]!r} after the "
                                    f"{len(values)} values of block {name}")
