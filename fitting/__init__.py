@@ -9,7 +9,8 @@ This package is installed with ``jaxsss`` and imports only its public API (``imp
   theorem).
 - Registries: :data:`FORWARD_MODELS` (``dipole``, ``multipole``; :func:`register_model` adds more) and
   :data:`SOLVERS` (``levenberg_marquardt``, ``gauss_newton``, ``dogleg``).
-- I/O: :func:`read_profile_csv`, :func:`load_profile_npy`, :func:`read_profile` -> :class:`ProfileData`.
+- I/O: :func:`read_profile_csv`, :func:`load_profile_npy`, :func:`read_profile` -> :class:`ProfileData`;
+  :func:`read_mco` reads MCML 1.2.2's ``.mco`` output (:class:`McoRun`, in mm; ``read_profile`` dispatches ``.mco``).
 
 The Rd -> alpha' inversion and the (Rd, l_d) reparameterisation are closed-form physics and live in
 :mod:`jaxsss.reflectance` and :mod:`jaxsss.reparam`. - :func:`fit_image`: sigma_a and sigma_s' per channel from a rendered image (:class:`ImageFit`).
@@ -18,6 +19,7 @@ The Rd -> alpha' inversion and the (Rd, l_d) reparameterisation are closed-form 
 import jaxsss  # noqa: F401  (float64 before anything else)
 from fitting.image_fit import ImageFit, fit_image
 from fitting.io import COLUMNS, ProfileData, ProfileFileError, load_profile_npy, read_profile, read_profile_csv
+from fitting.mco import McoLayer, McoRun, read_mco
 from fitting.models import FORWARD_MODELS, ForwardModel, entry_transmittance, register_model, resolve_model
 from fitting.profile_fit import FitWarning, fit_jacobian_wrt_data, fit_profile, fit_profiles
 from fitting.result import CONDITION_LIMIT, CORRELATION_LIMIT, ProfileFit
@@ -32,6 +34,8 @@ __all__ = [
     "ImageFit",
     "ForwardModel",
     "LeastSquaresSolver",
+    "McoLayer",
+    "McoRun",
     "ProfileData",
     "ProfileFileError",
     "ProfileFit",
@@ -43,6 +47,7 @@ __all__ = [
     "fit_profiles",
     "load_profile_npy",
     "read_profile",
+    "read_mco",
     "read_profile_csv",
     "register_model",
     "resolve_model",

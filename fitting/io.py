@@ -1,4 +1,5 @@
-"""Reading measured or simulated radial profiles: CSV (the ``jaxsss mc`` format) and NumPy files.
+"""Reading measured or simulated radial profiles: CSV (the ``jaxsss mc`` format), NumPy files and MCML's ``.mco``
+output (:mod:`fitting.mco`).
 
 CSV format: columns ``r_mm, R[, R_stderr][, T, T_stderr]``, comma-separated, one radius per line, ``#`` starts a
 comment (whole line or trailing), blank lines are ignored. An optional header line names the columns (any order
@@ -233,6 +234,12 @@ def load_profile_npy(path) -> ProfileData:
 
 
 def read_profile(path) -> ProfileData:
-    """Read a profile by file extension: ``.npy``/``.npz`` with :func:`load_profile_npy`, anything else as CSV."""
+    """Read a profile by file extension: ``.npy``/``.npz`` with :func:`load_profile_npy`, ``.mco`` (MCML 1.2.2 output)
+    with :func:`fitting.mco.read_mco` (bin centres, per-bin standard errors from the photon count), anything else as
+    CSV."""
     suffix = Path(path).suffix.lower()
+    if suffix == ".mco":
+        from fitting.mco import read_mco  # fitting.mco imports this module
+
+        return read_mco(path).to_profile()
     return load_profile_npy(path) if suffix in (".npy", ".npz") else read_profile_csv(path)

@@ -97,6 +97,12 @@ class Medium(eqx.Module):
         return jnp.sqrt(3.0 * self.sigma_a * self.sigma_t_prime)
 
     @property
+    def sigma_tr_sq(self):
+        """``sigma_tr^2 = 3 sigma_a sigma_t'`` (1/mm^2): unlike ``sigma_tr`` its derivative in ``sigma_a`` is finite at
+        ``sigma_a = 0`` (``3 sigma_s'``), so the profiles are written in it (:mod:`jaxsss.profiles._sources`)."""
+        return 3.0 * self.sigma_a * self.sigma_t_prime
+
+    @property
     def D(self):
         """Diffusion constant ``D = 1 / (3 sigma_t')`` (mm)."""
         return 1.0 / (3.0 * self.sigma_t_prime)

@@ -64,9 +64,45 @@ def total_diffuse_reflectance(alpha_prime, A):
     return _eq15(alpha_prime, jnp.sqrt(3.0 * (1.0 - alpha_prime)), A)
 
 
+@jax.custom_jvp
+def _u_of_medium(sigma_a, sigma_s_prime):
+    """``u = sqrt(3 sigma_a / sigma_t')`` with the derivative written out so that ``sigma_a = 0`` gives the true one
+    (``+inf`` in ``sigma_a``, ``0`` in ``sigma_s'``) rather than ``inf * 0 = nan`` from the chain rule."""
+    return jnp.sqrt(3.0 * sigma_a / (sigma_a + sigma_s_prime))
+
+
+def _u_of_medium_jvp(primals, tangents):
+    sa, ss = primals
+    dsa, dss = tangents
+    st = sa + ss
+    u = jnp.sqrt(3.0 * sa / st)
+    # du = 3 / (2 u st^2) (ss dsa - sa dss); the dss coefficient 3 sa / (2 u st^2) = u / (2 st) is finite at sa = 0,
+    # the dsa coefficient 3 ss / (2 u st^2) is +inf there (the true derivative: u ~ sqrt(sigma_a)).
+    k = 1.5 * ss / (u * st * st)
+    m = u / (2.0 * st)
+    zero = jax.custom_derivatives.SymbolicZero
+    du = jnp.zeros_like(u)
+    # A tangent that is symbolically zero (sigma_a held fixed) adds nothing: no inf * 0 at sigma_a = 0.
+    if not isinstance(dsa, zero):
+        du = du + k * dsa
+    if not isinstance(dss, zero):
+        du = du - m * dss
+    return u, du
+
+
+_u_of_medium.defjvp(_u_of_medium_jvp, symbolic_zeros=True)
+
+
 def medium_total_diffuse_reflectance(medium: Medium):
-    """``Rd`` of a :class:`Medium` (Eq. 15), using ``1 - alpha' = sigma_a / sigma_t'`` to avoid cancellation."""
-    return _eq15(medium.alpha_prime, jnp.sqrt(3.0 * medium.one_minus_alpha_prime), medium.A)
+    """``Rd`` of a :class:`Medium` (Eq. 15), using ``1 - alpha' = sigma_a / sigma_t'`` to avoid cancellation.
+
+    At ``sigma_a = 0`` (``Rd = 1``) the derivative in ``sigma_a`` is truly infinite -- ``Rd ~ 1 - (1 + 2A/3)
+    sqrt(3 sigma_a / sigma_s')`` -- and reverse-mode gradients say so (``-inf``), while those in ``sigma_s'`` and
+    ``eta`` are finite (zero: a non-absorbing half-space reflects everything). Forward mode gives the same, provided
+    the ``sigma_a`` tangent is a symbolic zero when ``sigma_a`` is held fixed (an explicit zero tangent meets the
+    infinite coefficient: ``0 * inf = nan``). :func:`total_diffuse_reflectance_u` is the parametrisation with a
+    finite derivative there (``dRd/du = -(1 + 2A/3)`` at ``u = 0``)."""
+    return _eq15(medium.alpha_prime, _u_of_medium(medium.sigma_a, medium.sigma_s_prime), medium.A)
 
 
 class RdInversion(eqx.Module):

@@ -4,6 +4,9 @@ float32 within a stated distance of float64.
 Grid: alpha' in {1e-6, 1e-3, 0.5, 0.99, 1 - 1e-9} x sigma_t' in {1e-4, 1e-2, 1, 1e2, 1e4} /mm x
 eta in {0.5, 1, 1.0001, 1.3, 2.5} x r in {0, 1e-3, 1, 10, 1e4} l_d; slabs add thickness in
 {1e-4, 1e-2, 1, 10, 1e4} l_u (infinity is the dipole). Every model added to the core adds its rows here.
+sigma_a = 0 (alpha' = 1, l_d infinite) has its own rows: every forward model of the fitting registry (dipole,
+multipole, mc) with finite values and gradients that match one-sided differences, and Rd (value 1, d/d sigma_a
+truly -inf).
 
 Stated float32 tolerances (relative to float64, measured maxima in brackets):
 - dipole profile: 1e-5 wherever the float64 value exceeds 1e-30 (float32 underflows below ~1e-38) [1.3e-6];
@@ -187,3 +190,100 @@ def test_render_terms_values_gradients_and_float32(medium_inputs):
     v64 = np.asarray(v)
     resolved = v64 > 1e-30
     assert np.max(np.abs(v32[resolved] / v64[resolved] - 1)) < 1e-4
+
+
+# --- sigma_a = 0 (a non-absorbing medium, which Medium accepts) for every forward model of the fitting registry ---
+# The models are evaluated exactly as fits evaluate them (fitting.models.model_profiles, per incident photon).
+# Values and gradients in (sigma_a, sigma_s', eta) must be finite at sigma_a = 0, and d/d sigma_a must equal the
+# one-sided derivative: the profiles depend on sigma_a through sigma_tr^2 = 3 sigma_a sigma_t' (finite derivative;
+# profiles/_sources.py), with a sqrt(sigma_a)^3 next term, so one-sided differences at steps h and 4h are
+# Richardson-extrapolated (2 D(h) - D(4h) cancels the sqrt(h) error term). Radii are in l_u (l_d is infinite).
+# The multipole uses 8 pairs here (beyond 2 n L the truncated series' next terms are not small at step h); the
+# slab avoids d = l_u, where at r = 0 the real source of the bottom face sits in the plane (a true singularity).
+ZERO_R_OVER_LU = [0.0, 1e-3, 0.5, 3.0, 1e4]
+ZERO_FD_R_OVER_LU = [0.5, 3.0]
+
+
+def _zero_cases():
+    """``(model, static, grid of (sigma_s', eta, d/l_u))`` for each fitting model (``d`` unused by half-spaces)."""
+    from jaxsss.mc import available_white_tables
+
+    g, n = available_white_tables()[-1]  # one table: the others differ only in the tabulated numbers
+    return [
+        ("dipole", None, grid(SIGMA_T, ETA, [1.0])),
+        ("multipole", 8, grid(SIGMA_T, [1.0, 1.3, 2.5], [0.3, 3.0, 30.0])),
+        ("mc", (g, n), grid(SIGMA_T, [n], [1.0])),
+    ]
+
+
+def _zero_model(name, static):
+    """``f(q, r_lu) -> vector of R (and T)`` for ``q = (sigma_a, sigma_s', eta, d/l_u)``: the registry's model at
+    radii ``r_lu l_u`` (and thickness ``d l_u``), as fits evaluate it."""
+    from fitting.models import mc_table, model_profiles, resolve_model
+
+    model = resolve_model(name)
+    if name == "mc":
+        mc_table(*static)
+
+    def f(q, r_lu):
+        l_u = 1.0 / (q[0] + q[1])
+        thickness = q[3] * l_u if model.needs_thickness else None
+        out = model_profiles(model, jnp.asarray(r_lu) * l_u, q[0], q[1], q[2], thickness, static)
+        return jnp.concatenate([out[k] for k in model.outputs])
+
+    return f
+
+
+@pytest.mark.parametrize("case", _zero_cases(), ids=lambda c: f"{c[0]}-{c[1]}")
+def test_fitting_models_at_sigma_a_zero(case):
+    name, static, (ss, eta, d) = case
+    f = _zero_model(name, static)
+    q0 = jnp.asarray(np.stack([np.zeros_like(ss), ss, eta, d], axis=-1))
+    r = jnp.asarray(ZERO_R_OVER_LU)
+    # Forward mode: what the fits use (fitting/_kernel.py forms the Jacobian with jax.jacfwd). One compilation serves
+    # the values and the Jacobian (the finite differences reuse it and ignore its Jacobian).
+    both = jax.jit(jax.vmap(jax.jacfwd(lambda q, r_lu: (f(q, r_lu), f(q, r_lu)), has_aux=True), in_axes=(0, None)))
+
+    def values(q, r_lu):
+        return both(q, r_lu)[1]
+
+    jac, v = both(q0, r)
+    assert bool(jnp.all(jnp.isfinite(v))), v
+    if name != "multipole":  # 8 image pairs at sigma_a = 0 leave a truncation error of either sign (~1e-10 here)
+        assert bool(jnp.all(v >= 0)), v
+    assert bool(jnp.all(jnp.isfinite(jac))), np.argwhere(~np.isfinite(np.asarray(jac)))[:5]
+    # d/d sigma_a against one-sided differences D(h) at h, 4h, 16h: D = g + a sqrt(h) + b h + O(h^1.5), so
+    # E(h) = 2 D(h) - D(4h) = g - 2 b h and (4 E(h) - E(4h)) / 3 = g + O(h^1.5).
+    fd_at = np.isin(np.asarray(ZERO_R_OVER_LU), ZERO_FD_R_OVER_LU)
+    fd_at = np.concatenate([fd_at] * (v.shape[-1] // len(ZERO_R_OVER_LU)))
+    h = np.asarray(1e-9 * q0[:, 1:2])
+    base = np.asarray(v)[:, fd_at]
+    D = {k: (np.asarray(values(q0.at[:, 0].set(k * h[:, 0]), r))[:, fd_at] - base) / (k * h) for k in (1, 4, 16)}
+    E1, E4 = 2 * D[1] - D[4], 2 * D[4] - D[16]
+    fd = (4 * E1 - E4) / 3
+    grad = np.asarray(jac)[:, fd_at, 0]
+    # Compared in units of R / sigma_t' (the derivative's natural scale) per medium. The multipole's 8th image pair
+    # lies ~16 L from the surface, where sigma_tr d at step 16h is ~0.04: its O(h^1.5) remainder reaches 5e-5.
+    scale = np.max(np.abs(base), axis=-1, keepdims=True) / np.asarray(q0[:, 1:2])
+    atol = 1e-4 if name == "multipole" else 1e-5
+    np.testing.assert_allclose(grad / scale, fd / scale, rtol=1e-4, atol=atol)
+
+
+def test_rd_at_sigma_a_zero_is_one_with_the_true_infinite_derivative():
+    # Rd ~ 1 - (1 + 2A/3) sqrt(3 sigma_a / sigma_s'): d Rd / d sigma_a is -inf at 0 (said, not nan); the other
+    # derivatives are finite (zero); in u = sqrt(3 (1 - alpha')) the derivative is finite: -(1 + 2A/3).
+    from jaxsss.reflectance import total_diffuse_reflectance_u
+
+    ss, eta = grid(SIGMA_T, ETA)
+    x = jnp.asarray(np.stack([np.zeros_like(ss), ss, eta], axis=-1))
+    assert bool(jnp.all(rd_of(x) == 1.0))
+    g = np.asarray(jax.jit(jax.vmap(jax.grad(rd_of)))(x))
+    # Zero up to rounding in alpha' = sigma_s' / sigma_t' (measured 5e-13 at sigma_s' = 1e-4 /mm).
+    assert np.all(g[:, 0] == -np.inf) and np.all(np.abs(g[:, 1:]) <= 1e-12 / ss[:, None]), g
+    # Forward mode in (sigma_s', eta) with sigma_a held fixed (a symbolic-zero tangent; an explicit zero tangent
+    # would meet the infinite coefficient: 0 * inf, as documented in medium_total_diffuse_reflectance).
+    fwd = jax.jit(jax.vmap(jax.jacfwd(lambda y: medium_total_diffuse_reflectance(Medium(0.0, y[0], y[1])))))
+    assert np.all(np.abs(np.asarray(fwd(x[:, 1:]))) <= 1e-12 / ss[:, None])
+    A = Medium(0.0, 1.0, jnp.asarray(ETA)).A
+    np.testing.assert_allclose(jax.vmap(jax.grad(total_diffuse_reflectance_u))(jnp.zeros(len(ETA)), A),
+                               -(1 + 2 * A / 3), rtol=1e-12)

@@ -22,7 +22,7 @@ import equinox as eqx
 
 from jaxsss._validate import check_range
 from jaxsss.medium import Medium
-from jaxsss.profiles._sources import point_source_exitance
+from jaxsss.profiles._sources import point_source_exitance_sq
 
 __all__ = ["dipole_profile", "dipole_depths"]
 
@@ -53,7 +53,8 @@ def dipole_profile(r, medium: Medium):
 @eqx.filter_jit
 def _dipole_profile(r, medium: Medium):
     z_r, z_v = dipole_depths(medium)
-    sigma_tr = medium.sigma_tr
+    # In sigma_tr^2 = 3 sigma_a sigma_t', not sigma_tr: finite gradients at sigma_a = 0 (profiles/_sources.py).
+    s2 = medium.sigma_tr_sq
     # Hierarchical paper Eq. 8-9 (photon-diffusion Eq. 6): real source at depth z_r, negative image at height z_v
     # (E is odd in z, so -E(-z_v) = +E(z_v)).
-    return medium.alpha_prime * (point_source_exitance(z_r, r, sigma_tr) + point_source_exitance(z_v, r, sigma_tr))
+    return medium.alpha_prime * (point_source_exitance_sq(z_r, r, s2) + point_source_exitance_sq(z_v, r, s2))

@@ -67,7 +67,7 @@ import numpy as np
 from jaxsss import _config  # noqa: F401  (float64)
 from jaxsss._validate import check_range, is_concrete
 from jaxsss.medium import Medium
-from jaxsss.profiles._sources import point_source_exitance
+from jaxsss.profiles._sources import point_source_exitance_sq
 
 __all__ = ["multipole_depths", "multipole_n_pairs", "multipole_profile", "multipole_totals"]
 
@@ -136,11 +136,12 @@ def _depths(medium, d, i):
 
 # --- Eq. 13: profiles ---------------------------------------------------------------------------------------------
 def _profile_sums(r, medium, d, n_pairs):
-    sigma_tr = medium.sigma_tr
+    # In sigma_tr^2, not sigma_tr: finite gradients at sigma_a = 0 (profiles/_sources.py).
+    s2 = medium.sigma_tr_sq
     out_shape = jnp.broadcast_shapes(
-        jnp.shape(r), jnp.shape(d), jnp.shape(medium.l_u), jnp.shape(sigma_tr), jnp.shape(medium.z_b)
+        jnp.shape(r), jnp.shape(d), jnp.shape(medium.l_u), jnp.shape(s2), jnp.shape(medium.z_b)
     )
-    dtype = jnp.result_type(r, sigma_tr)
+    dtype = jnp.result_type(r, s2)
 
     # One pair per iteration, accumulated in place: memory stays at the output's size for any n_pairs, and on CPU
     # it runs ~5x faster than materialising a (2n+1, *out) block and summing it (benchmarks/profile_throughput.py).
@@ -148,9 +149,9 @@ def _profile_sums(r, medium, d, n_pairs):
     def add_pair(k, carry):
         z_r, z_v = (z[0] for z in _depths(medium, d, jnp.reshape(k - n_pairs, (1,))))
         # Eq. 13 at the top face: real sources minus virtual (negative) sources.
-        R = point_source_exitance(z_r, r, sigma_tr) - point_source_exitance(z_v, r, sigma_tr)
+        R = point_source_exitance_sq(z_r, r, s2) - point_source_exitance_sq(z_v, r, s2)
         # Eq. 13 at the bottom face, z' = d - z measured upward from it.
-        T = point_source_exitance(d - z_r, r, sigma_tr) - point_source_exitance(d - z_v, r, sigma_tr)
+        T = point_source_exitance_sq(d - z_r, r, s2) - point_source_exitance_sq(d - z_v, r, s2)
         return carry[0] + R, carry[1] + T
 
     zero = jnp.zeros(out_shape, dtype)
@@ -199,17 +200,20 @@ def multipole_profile(r, medium: Medium, thickness, *, n_pairs: int | None = Non
 
 
 # --- Closed-form totals -------------------------------------------------------------------------------------------
-def _sinh_ratio(x, L, sigma_tr):
-    """``sinh(sigma_tr x) / sinh(sigma_tr L)`` for ``|x| <= L``, finite with finite gradients for all sigma_tr L >= 0."""
-    s = sigma_tr * L
+def _sinh_ratio(x, L, sigma_tr_sq):
+    """``sinh(sigma_tr x) / sinh(sigma_tr L)`` for ``|x| <= L``, from ``sigma_tr^2``: finite with finite gradients for
+    all ``sigma_tr L >= 0``. The ratio is even in ``sigma_tr``, so its derivative in ``sigma_tr^2`` -- and hence in
+    ``sigma_a`` -- is finite at ``sigma_a = 0`` (the series branch; ``d/d(s^2) = xi (xi^2 - 1) / 6`` there)."""
+    s2 = sigma_tr_sq * L * L
     xi = x / L
-    small = s < _SERIES_BELOW
-    # Small sigma_tr L: Taylor series of both sinh; the limit sigma_tr -> 0 is x / L.
-    s_lo = jnp.where(small, s, 0.0)
-    a2, b2 = (s_lo * xi) ** 2, s_lo**2
+    small = s2 < _SERIES_BELOW**2
+    # Small sigma_tr L: Taylor series of both sinh in s^2; the limit sigma_tr -> 0 is x / L.
+    b2 = jnp.where(small, s2, 0.0)
+    a2 = b2 * xi * xi
     series = xi * (1.0 + a2 / 6.0 + a2 * a2 / 120.0) / (1.0 + b2 / 6.0 + b2 * b2 / 120.0)
-    # Otherwise e^{s(u - 1)} expm1(-2 s u) / expm1(-2 s) with u = |xi| <= 1: no overflow, no cancellation.
-    s_hi = jnp.where(small, 1.0, s)
+    # Otherwise e^{s(u - 1)} expm1(-2 s u) / expm1(-2 s) with u = |xi| <= 1: no overflow, no cancellation. The
+    # double where keeps sqrt away from 0 (an infinite derivative times zero would be nan).
+    s_hi = jnp.sqrt(jnp.where(small, 1.0, s2))
     positive = xi >= 0.0
     u = jnp.where(positive, xi, -xi)
     f = jnp.exp(s_hi * (u - 1.0)) * jnp.expm1(-2.0 * s_hi * u) / jnp.expm1(-2.0 * s_hi)
@@ -218,18 +222,18 @@ def _sinh_ratio(x, L, sigma_tr):
 
 @eqx.filter_jit
 def _totals_kernel(medium, d):
-    sigma_tr, l_u, z_b = medium.sigma_tr, medium.l_u, medium.z_b
+    s2, l_u, z_b = medium.sigma_tr_sq, medium.l_u, medium.z_b
     L = d + 2.0 * z_b
     alpha_prime = medium.alpha_prime
     # S(a) = sign(a) sinh(sigma_tr (L - |a|)) / sinh(sigma_tr L); each L - |a| is written out below so that it
     # carries no cancellation when d >> l_u.
     # Top face: R_total = alpha'/2 [S(l_u) - S(-l_u - 2 z_b)], with L - l_u = d + 2 z_b - l_u and
     # L - l_u - 2 z_b = d - l_u.
-    R_total = 0.5 * alpha_prime * (_sinh_ratio(d + 2.0 * z_b - l_u, L, sigma_tr) + _sinh_ratio(d - l_u, L, sigma_tr))
+    R_total = 0.5 * alpha_prime * (_sinh_ratio(d + 2.0 * z_b - l_u, L, s2) + _sinh_ratio(d - l_u, L, s2))
     # Bottom face: T_total = alpha'/2 [S(d - l_u) - S(d + l_u + 2 z_b)], with L - |d - l_u| = 2 z_b + l_u (d >= l_u)
     # or 2 d + 2 z_b - l_u (d < l_u), and L - (d + l_u + 2 z_b) = -l_u. S(0) = 0 at d = l_u.
     below = jnp.where(d >= l_u, 2.0 * z_b + l_u, 2.0 * d + 2.0 * z_b - l_u)
-    T_total = 0.5 * alpha_prime * (jnp.sign(d - l_u) * _sinh_ratio(below, L, sigma_tr) + _sinh_ratio(l_u, L, sigma_tr))
+    T_total = 0.5 * alpha_prime * (jnp.sign(d - l_u) * _sinh_ratio(below, L, s2) + _sinh_ratio(l_u, L, s2))
     return R_total, T_total
 
 
