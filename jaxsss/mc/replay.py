@@ -36,8 +36,12 @@ max_path)`` per capped photon in a one-layer medium).
 Effective sample size. The Kish ESS ``(sum w)^2 / sum w^2`` of the detected photons' replayed weights, and
 ``ess_fraction``: the ESS divided by the ESS of the same walks weighted by absorption alone (the scattering ratio set
 to 1). At the reference point ``ess_fraction = 1``; it measures what the change of scattering costs, not what
-absorption costs (a direct absorbing simulation pays that as well). Fits re-simulate when it falls below a threshold
-(:mod:`fitting.replay_fit`).
+absorption costs (a direct absorbing simulation pays that as well). The same ratio is reported per radial bin: it
+matters more than the global one, because the log-weight's variance grows with the number of scattering events
+(``~ k log^2(sigma_s / sigma_s0)``), so the far bins (photons with many events) degrade first while the near-source
+photons keep the global ESS high. When a bin's ESS is small the weights are heavy-tailed and a typical sample
+*underestimates* their mean: the replayed profile is then biased towards the reference's, not only noisy (measured in
+``benchmarks/replay_fits.py``). Fits re-simulate when it falls below a threshold (:mod:`fitting.replay_fit`).
 
 Speed. The recording walk is the engine's (:mod:`jaxsss.mc._kernel`): lock-step lanes in one ``lax.while_loop``
 with regeneration, SplitMix64 per lane, the same Henyey-Greenstein, rotation and Fresnel helpers. With no absorption
@@ -339,8 +343,9 @@ class ReplayEstimate(NamedTuple):
 
     ``R``: diffuse reflectance (specular excluded), ``T``: total transmittance (unscattered beam included),
     ``T_unscattered``: the unscattered part of ``T``; ``*_stderr``: standard errors of the mean over the recorded
-    photons; ``R_r``, ``T_r`` ``(M,)``; ``ess`` and ``ess_fraction`` (module docstring); ``cap_bound``: upper bound
-    on the ``R + T`` lost to the cap.
+    photons; ``R_r``, ``T_r`` ``(M,)``; ``ess`` and ``ess_fraction`` (module docstring); ``R_r_ess_fraction``,
+    ``T_r_ess_fraction`` ``(M,)``: the same ratio per radial bin (0 for an empty bin); ``cap_bound``: upper bound on
+    the ``R + T`` lost to the cap.
     """
 
     R: Array
@@ -354,6 +359,8 @@ class ReplayEstimate(NamedTuple):
     T_r_stderr: Array
     ess: Array
     ess_fraction: Array
+    R_r_ess_fraction: Array
+    T_r_ess_fraction: Array
     cap_bound: Array
 
 
@@ -384,7 +391,6 @@ def photon_weights(sample: ReplaySample, sigma_a, sigma_s_prime):
     return sample.w0 * jnp.exp(log_ratio + log_abs), sample.w0 * jnp.exp(log_abs)
 
 
-@jax.jit
 def replay(sample: ReplaySample, sigma_a, sigma_s_prime) -> ReplayEstimate:
     """R(r), T(r) and the totals of ``sample``'s stack with per-layer ``sigma_a`` and ``sigma_s_prime`` (1/mm).
 
@@ -396,18 +402,29 @@ def replay(sample: ReplaySample, sigma_a, sigma_s_prime) -> ReplayEstimate:
 
     Returns:
         :class:`ReplayEstimate`; differentiable in ``sigma_a`` and ``sigma_s_prime`` (jit-compiled once per sample
-        shape). Invalid coefficients give NaN through ``equinox.error_if`` (an error at run time).
+        shape).
+
+    Raises:
+        ValueError: for a wrong shape, and for out-of-range values when they are concrete (under ``jit``/``grad``
+        the values are not checked: no host callback, so the compiled code can go to the persistent cache).
     """
     sigma_a = jnp.asarray(sigma_a, jnp.float64)
     sigma_s_prime = jnp.asarray(sigma_s_prime, jnp.float64)
-    for name, v in (("sigma_a", sigma_a), ("sigma_s_prime", sigma_s_prime)):
+    for name, v, lo_ok in (("sigma_a", sigma_a, lambda x: x >= 0.0), ("sigma_s_prime", sigma_s_prime,
+                                                                       lambda x: x > 0.0)):
         if v.shape != sample.sigma_s0.shape:
             raise ValueError(f"replay({name}=array of shape {v.shape}) must have shape {sample.sigma_s0.shape}: one "
                              "value per layer")
-    sigma_a = eqx.error_if(sigma_a, jnp.any(~(sigma_a >= 0.0)) | jnp.any(~jnp.isfinite(sigma_a)),
-                           "replay(sigma_a) must be finite and >= 0")
-    sigma_s_prime = eqx.error_if(sigma_s_prime, jnp.any(~(sigma_s_prime > 0.0)) | jnp.any(~jnp.isfinite(sigma_s_prime)),
-                                 "replay(sigma_s_prime) must be finite and > 0")
+        if not isinstance(v, jax.core.Tracer):
+            arr = np.asarray(v)
+            if not np.all(lo_ok(arr) & np.isfinite(arr)):
+                raise ValueError(f"replay({name}={arr.tolist()}) is outside the allowed range "
+                                 f"{'[0, inf)' if name == 'sigma_a' else '(0, inf)'}")
+    return _replay(sample, sigma_a, sigma_s_prime)
+
+
+@jax.jit
+def _replay(sample: ReplaySample, sigma_a, sigma_s_prime) -> ReplayEstimate:
     N = sample.photons
     w, w_abs = photon_weights(sample, sigma_a, sigma_s_prime)
     is_R, is_T = sample.side == SIDE_R, sample.side == SIDE_T
@@ -419,18 +436,26 @@ def replay(sample: ReplaySample, sigma_a, sigma_s_prime) -> ReplayEstimate:
     M = sample.r_edges.shape[0] - 1
     area = jnp.pi * jnp.diff(sample.r_edges**2)
 
+    def sums(c):
+        return (jax.ops.segment_sum(c, sample.bin, num_segments=M + 1)[:M],
+                jax.ops.segment_sum(c * c, sample.bin, num_segments=M + 1)[:M])
+
     def profile(mask):
         # Per-bin sums of the photons' contributions and of their squares (each photon lies in one bin).
-        c = jnp.where(mask, w, 0.0)
-        s1 = jax.ops.segment_sum(c, sample.bin, num_segments=M + 1)[:M]
-        s2 = jax.ops.segment_sum(c * c, sample.bin, num_segments=M + 1)[:M]
+        s1, s2 = sums(jnp.where(mask, w, 0.0))
         mean = s1 / N
-        return mean / area, jnp.sqrt(jnp.maximum(s2 / N - mean * mean, 0.0) / (N - 1)) / area
+        # Per-bin Kish ESS, relative to the same photons weighted by absorption alone.
+        a1, a2 = sums(jnp.where(mask, w_abs, 0.0))
+        ess_bin = s1 * s1 / jnp.where(s2 > 0.0, s2, 1.0)
+        ess_abs = a1 * a1 / jnp.where(a2 > 0.0, a2, 1.0)
+        frac = jnp.where(ess_abs > 0.0, ess_bin / jnp.where(ess_abs > 0.0, ess_abs, 1.0), 0.0)
+        return mean / area, jnp.sqrt(jnp.maximum(s2 / N - mean * mean, 0.0) / (N - 1)) / area, frac
 
-    R_r, R_r_err = profile(is_R)
-    T_r, T_r_err = profile(is_T)
+    R_r, R_r_err, R_r_ess = profile(is_R)
+    T_r, T_r_err, T_r_ess = profile(is_T)
     ess = _kish(jnp.where(detected, w, 0.0))
     ess_abs = _kish(jnp.where(detected, w_abs, 0.0))
     cap = jnp.sum(jnp.where(sample.side == SIDE_CAP, w, 0.0)) / N
     return ReplayEstimate(R, R_err, T, T_err, T_un, R_r, R_r_err, T_r, T_r_err, ess,
-                          jnp.where(ess_abs > 0.0, ess / jnp.where(ess_abs > 0.0, ess_abs, 1.0), 0.0), cap)
+                          jnp.where(ess_abs > 0.0, ess / jnp.where(ess_abs > 0.0, ess_abs, 1.0), 0.0), R_r_ess,
+                          T_r_ess, cap)
