@@ -323,7 +323,7 @@ def _corrected_step(theta_ref, theta, sample, problem, max_gain: float = 5.0):
 
 def fit_replay(stack: Stack, data: ReplayData, *, free_layers: Sequence[int] = (-1,), photons: int = 200_000,
                ess_threshold: float = ESS_THRESHOLD, ess_final: float = ESS_FINAL, max_move: float = MAX_MOVE,
-               max_simulations: int = 8, max_steps: int = 100,
+               max_simulations: int = 12, max_steps: int = 100,
                rtol: float = 1e-6, atol: float = 1e-8, seed: int = 0, max_path: float | None = None,
                record_kwargs: dict | None = None) -> ReplayFit:
     """Fit the free layers' ``sigma_a`` and ``sigma_s'`` of ``stack`` to ``data`` with replay Monte Carlo.

@@ -63,7 +63,7 @@ from jaxtyping import Array, Float, Int
 
 from jaxsss import _config  # noqa: F401  (float64)
 from jaxsss._validate import check_range
-from jaxsss.mc._kernel import _cos_sin_2pi, _fresnel, _hg_cos, _spin, _uniform  # noqa: F401
+from jaxsss.mc._kernel import _fresnel, _hg_cos, _spin, _uniform
 from jaxsss.mc.engine import entry_state
 from jaxsss.mc.stack import Stack
 
