@@ -217,6 +217,16 @@ class _Problem(eqx.Module):
     unscattered: bool = eqx.field(static=True)
 
 
+def _make_problem(sa0, ssp0, free, blocks, unscattered) -> _Problem:
+    """The :class:`_Problem` of per-layer start values, free layer indices and checked data blocks (the residual scale
+    is the data's standard error until a sample's is added)."""
+    return _Problem(sa0=jnp.asarray(sa0), ssp0=jnp.asarray(ssp0), free=jnp.asarray(free, jnp.int32),
+                    idx=tuple(None if b[3] is None else jnp.asarray(b[3], jnp.int32) for b in blocks),
+                    y=jnp.asarray(np.concatenate([b[1] for b in blocks])),
+                    sigma=jnp.asarray(np.concatenate([b[2] for b in blocks])),
+                    names=tuple(b[0] for b in blocks), unscattered=bool(unscattered))
+
+
 def _coefficients(theta, problem: _Problem):
     """Per-layer ``(sigma_a, sigma_s')`` with the free layers' values ``exp(theta)`` (``theta``: ``(2k,)`` log)."""
     k = problem.free.shape[0]
@@ -379,12 +389,8 @@ def fit_replay(stack: Stack, data: ReplayData, *, free_layers: Sequence[int] = (
                              "is the initial guess and must be > 0 for free layers")
     if max_path is None:
         max_path = CAP_OPTICAL / float(np.min(sa0[sa0 > 0], initial=np.inf)) if stack.is_half_space else math.inf
-    problem = _Problem(sa0=jnp.asarray(sa0), ssp0=jnp.asarray(ssp0), free=jnp.asarray(free, jnp.int32),
-                       idx=tuple(None if b[3] is None else jnp.asarray(b[3], jnp.int32) for b in blocks),
-                       y=jnp.asarray(np.concatenate([b[1] for b in blocks])),
-                       sigma=jnp.asarray(np.concatenate([b[2] for b in blocks])),
-                       names=tuple(b[0] for b in blocks), unscattered=bool(data.unscattered))
-    sigma_data = jnp.asarray(np.concatenate([b[2] for b in blocks]))
+    problem = _make_problem(sa0, ssp0, free, blocks, data.unscattered)
+    sigma_data = problem.sigma
     n_points, k = int(problem.y.size), len(free)
 
     def stack_at(theta):

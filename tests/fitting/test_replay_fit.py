@@ -93,3 +93,40 @@ def test_fit_replay_rejects_bad_input(kwargs, match):
 def test_fit_slab_totals_rejects_bad_input(R, T, match):
     with pytest.raises(ValueError, match=match):
         fit_slab_totals(R, T, g=0.0, n=1.0, thickness=1.0)
+
+
+def test_dilution_noise_matrix_matches_per_photon_sums():
+    """The noise part of J^T W J (the regression-dilution correction) equals its definition computed in NumPy from
+    the per-photon derivatives d w / d log sigma_a = -w L sigma_a and d w / d log sigma_s' = w (k - sigma_s L), per
+    fitted bin and for a total; it is positive semi-definite and smaller than J^T W J for a sample this size."""
+    import jax.numpy as jnp
+
+    from fitting.replay_fit import _check_data, _make_problem, _normal_matrices
+    from jaxsss.mc.replay import record
+
+    stack, data, _ = _mcml_problem("slab03mm_n133_g09", start=(1.0, 1.0))
+    data = data._replace(T_r=None, T=0.67)
+    blocks, edges = _check_data(data)
+    sa0, ssp0 = np.asarray(stack.sigma_a), np.asarray(stack.sigma_s) * 0.1
+    problem = _make_problem(sa0, ssp0, [0], blocks, True)
+    sample = record(stack, 100_000, r_edges=edges, seed=4)
+    theta = jnp.log(jnp.asarray([0.12, 2.2]))
+    A, noise = (np.asarray(a) for a in _normal_matrices(theta, sample, problem))
+    # NumPy: per-photon weights and derivatives at theta.
+    sa, ssp = 0.12, 2.2
+    mus, mus0 = ssp / 0.1, float(stack.sigma_s[0])
+    k, L = np.asarray(sample.scatterings)[:, 0], np.asarray(sample.path)[:, 0]
+    w = float(sample.w0) * (mus / mus0) ** k * np.exp(-(mus + sa - mus0) * L)
+    d = np.stack([-w * L * sa, w * (k - mus * L)], axis=1)
+    side, b = np.asarray(sample.side), np.asarray(sample.bin)
+    area = np.pi * np.diff(edges**2)
+    sigma = np.asarray(problem.sigma)
+    expect = np.zeros((2, 2))
+    idx = blocks[0][3]
+    for j, i in enumerate(idx):
+        sel = (side == 0) & (b == i)
+        expect += d[sel].T @ d[sel] / (sample.photons * area[i]) ** 2 / sigma[j] ** 2
+    sel = side == 1
+    expect += d[sel].T @ d[sel] / sample.photons**2 / sigma[-1] ** 2
+    np.testing.assert_allclose(noise, expect, rtol=1e-9)
+    assert np.all(np.linalg.eigvalsh(noise) >= 0) and np.all(np.linalg.eigvalsh(A - noise) > 0)
