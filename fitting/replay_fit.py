@@ -237,7 +237,7 @@ def _coefficients(theta, problem: _Problem):
 
 @jax.jit
 def _model(theta, sample, problem: _Problem):
-    """The model's values and standard errors at the data points, and the sample's ``ess_fraction``."""
+    """The model's values and standard errors at the data points, the trust statistic and the cap bound."""
     est = replay(sample, *_coefficients(theta, problem))
     vals, errs, bins_ess = [], [], []
     for name, idx in zip(problem.names, problem.idx):
@@ -250,26 +250,12 @@ def _model(theta, sample, problem: _Problem):
     ess = est.ess_fraction
     if bins_ess:
         ess = jnp.minimum(ess, jnp.quantile(jnp.concatenate(bins_ess), BIN_QUANTILE))
-    return jnp.concatenate(vals), jnp.concatenate(errs), ess
+    return jnp.concatenate(vals), jnp.concatenate(errs), ess, est.cap_bound
 
 
 def _residuals(theta, args):
     sample, problem = args
     return (_model(theta, sample, problem)[0] - problem.y) / problem.sigma
-
-
-@jax.jit
-def _jacobian(theta, sample, problem):
-    return jax.jacfwd(_residuals)(theta, (sample, problem))
-
-
-def _stderr_log(theta, sample, problem) -> np.ndarray:
-    """Standard errors of the log-parameters from ``(J^T J)^-1`` of the weighted residuals (``inf`` if singular)."""
-    J = np.asarray(_jacobian(theta, sample, problem))
-    try:
-        return np.sqrt(np.maximum(np.diag(np.linalg.inv(J.T @ J)), 0.0))
-    except np.linalg.LinAlgError:
-        return np.full(J.shape[1], np.inf)
 
 
 @jax.jit
@@ -416,8 +402,7 @@ def fit_replay(stack: Stack, data: ReplayData, *, free_layers: Sequence[int] = (
         # Undo the regression dilution of the step (the sample's noisy Jacobian), then check the trust region.
         step, normal, gain = _corrected_step(theta_ref, theta, sample, problem)
         theta = theta_ref + jnp.asarray(step)
-        ess = float(_model(theta, sample, problem)[2])
-        cap_bound = float(replay(sample, *_coefficients(theta, problem)).cap_bound)
+        _, _, ess, cap_bound = (float(v) if np.ndim(v) == 0 else v for v in _model(theta, sample, problem))
         try:
             se_log = np.sqrt(np.maximum(np.diag(np.linalg.inv(normal)), 0.0))
         except np.linalg.LinAlgError:
