@@ -21,6 +21,7 @@ from fitting.image_fit import ImageFit, fit_image
 from fitting.io import COLUMNS, ProfileData, ProfileFileError, load_profile_npy, read_profile, read_profile_csv
 from fitting.mco import McoLayer, McoRun, read_mco
 from fitting.models import FORWARD_MODELS, ForwardModel, entry_transmittance, register_model, resolve_model
+from fitting.replay_fit import ReplayData, ReplayFit, fit_replay, fit_slab_totals
 from fitting.profile_fit import FitWarning, fit_jacobian_wrt_data, fit_profile, fit_profiles
 from fitting.result import CONDITION_LIMIT, CORRELATION_LIMIT, ProfileFit
 from fitting.solvers import SOLVERS, LeastSquaresSolver, resolve_solver
@@ -39,12 +40,16 @@ __all__ = [
     "ProfileData",
     "ProfileFileError",
     "ProfileFit",
+    "ReplayData",
+    "ReplayFit",
     "SOLVERS",
     "entry_transmittance",
     "fit_image",
     "fit_jacobian_wrt_data",
     "fit_profile",
     "fit_profiles",
+    "fit_replay",
+    "fit_slab_totals",
     "load_profile_npy",
     "read_profile",
     "read_mco",
