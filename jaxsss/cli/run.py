@@ -234,11 +234,11 @@ def step_render(ctx: RunContext) -> None:
     out = ctx.out_dir / "marble_teapot.png"
     paths = write_outputs(out, result.image, result.report, exposure=scene.output.exposure,
                           json_path=ctx.out_dir / "marble_teapot.json")
-    r, t = result.report, result.report["timings"]
+    r = result.report
     ctx.say(result.plan.explain())
     ctx.say(f"{r['resolution'][0]}x{r['resolution'][1]}: {r['n_samples']} irradiance samples, {r['n_shaded_points']} "
             f"shaded points, {r['interactions_per_point_mean']:.0f} interactions per point (eps {r['eps']:g})")
-    ctx.say("seconds: " + ", ".join(f"{k} {v:.2f}" for k, v in t.items()) +
+    ctx.say("seconds: " + ", ".join(f"{k} {v:.2f}" for k, v in r["seconds"].items()) +
             f"; total {r['seconds_total']:.1f} ({r['seconds_total_excluding_compile']:.1f} without compilation)")
     ctx.say(f"wrote {', '.join(paths.values())}")
     ctx.results["render"] = (scene, result)

@@ -154,7 +154,7 @@ def test_layered_method_explain_and_render(capsys, tmp_path):
     assert out.read_bytes()[:8] == PNG_SIGNATURE
     report = json.loads((tmp_path / "l.json").read_text())
     assert report["method"] == "layered" and report["samples"] == 8 and "diffusion" not in report
-    assert [i["name"] for i in report["plan"]] == ["ray marching", "outer-layer diffusion"]
+    assert [i["name"] for i in report["plan"]["items"]] == ["ray marching", "outer-layer diffusion"]
 
 
 def test_layered_method_adds_the_forced_diffusion_term(capsys, tmp_path):
