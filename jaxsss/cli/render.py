@@ -31,6 +31,7 @@ _OPTIONS = {
     "cache_error": ("error_bound", "(0, inf)"),
     "cache_gradient": ("gradient", None),
     "one_pass": ("one_pass", None),
+    "cache_always": ("always", None),
 }
 
 
@@ -70,6 +71,9 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
                         "(Eq. 9), the same by autodiff, or none (plain weighted mean); W/mm^3")
     p.add_argument("--one-pass", action="store_true", default=None,
                    help="cached method: interpolate from the caches made so far (single pass) instead of all")
+    p.add_argument("--cache-always", action="store_true", default=None,
+                   help="cached method: cache even where the plan leaves caching out (below 20000 shaded points it "
+                        "costs more end to end than it saves; see --explain)")
     p.add_argument("--debug-images", action="store_true",
                    help="cached method: also write OUT_caches.png, OUT_gradient.png and OUT_variance.png")
     p.add_argument("--eps", type=number, default=None,
@@ -117,6 +121,8 @@ def run(args) -> int:
     options = method_options(args, entry)
     if args.debug_images and entry.name != "cached":
         raise CLIError(f"--debug-images applies to --method cached, not {entry.name}")
+    if args.debug_images:
+        options["always"] = True  # the debug images show the caches
     resolution = None if args.resolution is None else tuple(args.resolution)
     if args.explain:
         plan = explain_method(scene, entry.name, resolution=resolution, **options)
@@ -128,7 +134,7 @@ def run(args) -> int:
         return 0
     out = args.output or Path(args.scene.with_suffix(".png").name)
     result = render(scene, entry.name, resolution=resolution, progress=not args.quiet, **options)
-    if args.debug_images:
+    if args.debug_images and "placement" in result.prepared.extras:
         from jaxsss.render.cache import debug_images
         from jaxsss.render.output import write_png
 

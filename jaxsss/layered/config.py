@@ -47,8 +47,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from jaxsss._validate import check_integer
 from jaxsss.layered.layers import LayerStack
-from jaxsss.layered.phase import PHASE_FUNCTIONS
+from jaxsss.phase import PHASE_FUNCTIONS
 from jaxsss.layered.presets import LAYER_PRESETS, layer_preset
 from jaxsss.layered.textures import PROCEDURAL_TEXTURES, SubsurfaceTexture, load_texture_png, procedural_texture
 from jaxsss.render.scene import Scene, SceneError, SceneKeys, register_section
@@ -90,8 +91,7 @@ def layer_spec(stack: LayerStack, texture: SubsurfaceTexture, **knobs) -> LayerS
         raise ValueError(f"layer_spec(texture=...): {texture.n_layers} texture channels for {stack.n_layers} layers")
     texture = texture.layers(stack.n_layers) if texture.n_layers > stack.n_layers else texture
     spec = LayerSpec(stack, texture, **knobs)
-    if not (isinstance(spec.samples, int) and spec.samples >= 1):
-        raise ValueError(f"layer_spec(samples={spec.samples!r}): allowed range [1, inf) (integer)")
+    check_integer(spec.samples, "samples", 1, owner="layer_spec")
     if not 0.0 < spec.plane_eps < 1.0:
         raise ValueError(f"layer_spec(plane_eps={spec.plane_eps!r}): allowed range (0, 1)")
     if spec.depth_max is not None and not (spec.depth_max > 0 and math.isfinite(spec.depth_max)):

@@ -238,13 +238,8 @@ class LayeredMethodState(eqx.Module):
     stack: LayerStack
     diffusion: Any  # jaxsss.render.Prepared of the outer layer's dipole sum, or None
 
-    @property
-    def shape(self) -> tuple:
-        return self.march.shape
-
-    @property
-    def spp(self) -> int:
-        return self.march.spp
+    shape = property(lambda self: self.march.shape, doc="``(H, W)`` of the image.")
+    spp = property(lambda self: self.march.spp, doc="Camera rays per pixel.")
 
     def single_scattering(self, medium: Medium):
         """``(H, W, C)`` the layered single-scattering term alone."""

@@ -28,12 +28,16 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from jaxsss._validate import check_integer
 from jaxsss.medium import Medium
 from jaxsss.photon.emit import emit_photons
 from jaxsss.photon.trace import PhotonTrace, trace_photons
 from jaxsss.photon.tree import PairLists, SourceTree, pair_lists, source_tree
-from jaxsss.profiles.blend import blended_exitance
-from jaxsss.profiles.oblique import KAPPA_COEFFICIENTS, attenuation_kernel
+# The unchecked kernels of the profiles package (its owner is asked to make them public: issue 16's report). The public
+# blended_exitance and attenuation_kernel validate every argument with equinox.error_if, which inside this sum's scan
+# raised spuriously during Levenberg-Marquardt fits (fit_image(method="photon")) and costs time in the inner loop.
+from jaxsss.profiles.blend import _blended
+from jaxsss.profiles.oblique import KAPPA_COEFFICIENTS, _kappa
 from jaxsss.profiles.point_sources import DEFAULT_N_PAIRS
 from jaxsss.render import radiance as rad
 from jaxsss.render.methods import Preparation, register_method
@@ -91,6 +95,7 @@ class PhotonPrepared(ShadedPoints):
     def exitance(self, medium: Medium):
         """Radiant exitance at the shaded points, ``(Q, C)`` W/mm^2 (module docstring)."""
         ent_power = rad.entity_flux(self.source_power(medium), self.ent_start, self.ent_stop)
+        coeff = KAPPA_COEFFICIENTS[self.kappa]
         out = 0.0
         for pq, pe, n_pairs in zip(self.pair_query, self.pair_entity, (0, self.n_pairs), strict=True):
             if pq.shape[0] == 0:
@@ -103,9 +108,9 @@ class PhotonPrepared(ShadedPoints):
                 h = jnp.sum((x - src) * n, axis=-1, keepdims=True)
                 src = src + jnp.minimum(h, 0.0) * n
                 # Eq. 15 (blend of dipole, quadpole, multipole) times Eq. 9 (kappa), per unit source power.
-                prof = blended_exitance(x, n, src, self.ent_normal[e], self.ent_depth[e], medium, n_pairs=n_pairs)
+                prof = _blended(x, n, src, self.ent_normal[e], self.ent_depth[e], medium, n_pairs)
                 d_r = jnp.sqrt(jnp.sum((x - src) ** 2, axis=-1, keepdims=True))
-                return prof * attenuation_kernel(d_r, medium, self.kappa) * ent_power[e]
+                return prof * _kappa(coeff, d_r, medium) * ent_power[e]
 
             out = out + rad.scan_pairs(contrib, self.n_queries, ent_power.shape[-1:], ent_power.dtype, pq, pe)
         if isinstance(out, float):
@@ -204,8 +209,7 @@ def prepare_photon(scene, *, n_photons: int | None = None, eps: float | None = N
     if kappa not in KAPPA_COEFFICIENTS:
         raise ValueError(f"prepare_photon(kappa={kappa!r}) is not one of: {', '.join(KAPPA_COEFFICIENTS)}")
     n_photons = scene.render.photons if n_photons is None else n_photons
-    if not (isinstance(n_photons, (int, np.integer)) and n_photons >= 1):
-        raise ValueError(f"prepare_photon(n_photons={n_photons!r}) must be an integer in [1, inf)")
+    check_integer(n_photons, "n_photons", 1, owner="prepare_photon")
     eps = float(scene.render.eps if eps is None else eps)
     if not (math.isfinite(eps) and eps > 0):
         raise ValueError(f"prepare_photon(eps={eps!r}) is outside the allowed range (0, inf) sr")

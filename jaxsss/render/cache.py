@@ -47,6 +47,7 @@ Decisions (written down as the issue asks):
 
 from __future__ import annotations
 
+import dataclasses
 import time
 from typing import Any, NamedTuple
 
@@ -60,10 +61,12 @@ from jaxsss.fresnel import fresnel_reflectance
 from jaxsss.medium import Medium
 from jaxsss.reflectance import medium_total_diffuse_reflectance
 from jaxsss.render import radiance as rad
-from jaxsss.render.methods import Preparation, register_method
+from jaxsss.render.camera import camera_rays
+from jaxsss.render.methods import Preparation, register_method, resolve_method
 from jaxsss.render.pairs import pair_info, pair_lists
 from jaxsss.render.plan import PlanItem, make_plan
 from jaxsss.render.radiance import F_dt_external
+from jaxsss.render.rays import OBJECT_TRANSLUCENT, SceneGeometry
 from jaxsss.render.renderer import assemble_prepared, irradiance_pass
 from jaxsss.render.shading import shading_points
 
@@ -72,8 +75,10 @@ __all__ = [
     "GRADIENTS",
     "NORMAL_COS",
     "CachePlacement",
+    "CACHE_MIN_POINTS",
     "CachedPrepared",
     "DEFAULT_ERROR_BOUND",
+    "caching_pays",
     "debug_images",
     "explain_cached",
     "place_caches",
@@ -81,6 +86,8 @@ __all__ = [
     "split_disk_constant",
 ]
 
+CACHE_MIN_POINTS = 20_000
+"""The registered method caches only images with at least this many shaded points (:func:`caching_pays`)."""
 DEFAULT_ERROR_BOUND = 0.3
 """The default relative error bound ``a`` (``jaxsss render --method cached --cache-error``)."""
 GRADIENTS = ("far", "analytic", "autodiff", "none")
@@ -253,13 +260,8 @@ class CachedPrepared(eqx.Module):
         den = jax.ops.segment_sum(self.pair_weight, self.pair_point, num_segments=n, indices_are_sorted=True)
         return num / den[:, None]
 
-    @property
-    def shape(self) -> tuple:
-        return self.points.shape
-
-    @property
-    def spp(self) -> int:
-        return self.points.spp
+    shape = property(lambda self: self.points.shape, doc="``(H, W)`` of the image.")
+    spp = property(lambda self: self.points.spp, doc="Camera rays per pixel.")
 
     def image(self, medium: Medium):
         """The linear radiance image ``(H, W, C)``."""
@@ -436,8 +438,47 @@ def debug_images(prepared, medium: Medium | None = None) -> dict[str, np.ndarray
     return out
 
 
+def _shaded_point_count(scene, resolution, pixel_mask) -> int:
+    """How many camera rays hit the translucent object (the plan's measure of what caching can save)."""
+    rays = camera_rays(scene.camera, resolution, seed=scene.render.seed)
+    keep = slice(None) if pixel_mask is None else np.asarray(pixel_mask).reshape(-1)[rays.pixel]
+    hits = SceneGeometry(scene.mesh, [o.mesh for o in scene.occluders]).first_hit(rays.origins[keep],
+                                                                                    rays.directions[keep])
+    return int(np.count_nonzero(hits.obj == OBJECT_TRANSLUCENT))
+
+
+def caching_pays(n_points: int) -> tuple[bool, str]:
+    """The plan's rule for the cached method end to end: ``(pays, reason)``.
+
+    Caching saves the interaction lists and pass 2 of every point that is not a cache, and costs the cache placement
+    and a larger image function to compile (the gradient and the interpolation: about 5 s more). Measured end to end
+    on the marble teapot (``jaxsss render --method cached`` against ``--method hierarchical``, a = 0.3, no
+    persistent compilation cache; ``docs/benchmarks.md``): 9698 shaded points (256 x 256) 17.1 s against 12.6 s, a
+    loss; 38786 points (512 x 512) 37.2 s against 172 s, 4.6x faster. It pays above :data:`CACHE_MIN_POINTS`."""
+    if n_points >= CACHE_MIN_POINTS:
+        return True, f"{n_points} shaded points >= {CACHE_MIN_POINTS}: caching pays end to end"
+    return False, (f"left out: {n_points} shaded points < {CACHE_MIN_POINTS}, where the cache's placement and extra "
+                   "compilation cost more than the interactions it saves (measured end to end, docs/benchmarks.md); "
+                   "the hierarchical sum renders the image (--cache-always keeps the caches)")
+
+
+def _not_cached(preparation, reason: str):
+    """A hierarchical preparation presented as the cached method's, with the plan saying why."""
+    plan = preparation.plan._replace(method="cached",
+                                     items=preparation.plan.items + (PlanItem("irradiance caches", False, reason),))
+    diagnostics = {**preparation.diagnostics, "n_caches": 0, "cache_ratio": 0.0}
+    return dataclasses.replace(preparation, method="cached", plan=plan, diagnostics=diagnostics)
+
+
 def _prepare_registered(scene, *, resolution=None, pixel_mask=None, fit=False, progress=False, eps=None,
-                        error_bound=DEFAULT_ERROR_BOUND, one_pass=False, gradient="far"):
+                        error_bound=DEFAULT_ERROR_BOUND, one_pass=False, gradient="far", always=False):
+    # The rule is for one render; a fit evaluates the image many times and keeps the caches.
+    if not (always or fit):
+        pays, why = caching_pays(_shaded_point_count(scene, resolution, pixel_mask))
+        if not pays:
+            hierarchical = resolve_method("hierarchical")
+            return _not_cached(hierarchical.prepare(scene, resolution=resolution, pixel_mask=pixel_mask, fit=fit,
+                                                    progress=progress, eps=eps), why)
     cached, plan, info, placement = prepare_cached(scene, error_bound, eps=eps, resolution=resolution,
                                                    one_pass=one_pass, gradient=gradient, progress=progress,
                                                    pixel_mask=pixel_mask, cutoff=not fit, share_channels=not fit)
@@ -447,10 +488,15 @@ def _prepare_registered(scene, *, resolution=None, pixel_mask=None, fit=False, p
 
 
 def _explain_registered(scene, *, resolution=None, eps=None, error_bound=DEFAULT_ERROR_BOUND, one_pass=False,
-                       gradient="far"):
+                        gradient="far", always=False):
+    if not always:
+        pays, why = caching_pays(_shaded_point_count(scene, resolution, None))
+        if not pays:
+            plan = make_plan(scene, method="hierarchical", eps=eps)
+            return plan._replace(method="cached", items=plan.items + (PlanItem("irradiance caches", False, why),))
     return explain_cached(scene, error_bound, eps=eps, resolution=resolution, one_pass=one_pass)[0]
 
 
 register_method("cached", _prepare_registered,
                 "irradiance caching with gradients (Keng et al. 2006) on top of the hierarchical sum",
-                options=("eps", "error_bound", "one_pass", "gradient"), explain=_explain_registered)
+                options=("eps", "error_bound", "one_pass", "gradient", "always"), explain=_explain_registered)

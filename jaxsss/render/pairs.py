@@ -18,11 +18,13 @@ import numpy as np
 
 from jaxsss.render.interactions import build_interactions
 
-__all__ = ["BLOCK_PAIRS", "NEAR_RADIUS_IN_SAMPLES", "PairLists", "near_radius", "pair_blocks", "pair_info",
+__all__ = ["BLOCK_PAIRS", "MIN_BLOCK", "NEAR_RADIUS_IN_SAMPLES", "PairLists", "near_radius", "pair_blocks", "pair_info",
            "pair_lists", "split_near"]
 
 BLOCK_PAIRS = 1 << 16
 """Pairs per block of the hierarchical sum (one ``lax.scan`` step)."""
+MIN_BLOCK = 256
+"""The smallest block :func:`pair_blocks` makes for a short list."""
 
 NEAR_RADIUS_IN_SAMPLES = 4.0
 """The near-field radius ``rho_0`` in sample radii ``sqrt(A_p / pi)`` (about 16 samples inside; see
@@ -45,7 +47,10 @@ class PairLists(NamedTuple):
 
 
 def pair_blocks(values: np.ndarray, fill: int, block: int) -> np.ndarray:
-    """``values`` padded with ``fill`` to a multiple of ``block`` (at least one block) and reshaped ``(B, block)``."""
+    """``values`` padded with ``fill`` to a multiple of the block size and reshaped ``(B, K)``: ``K = block``, or for a
+    short list the next power of two above its length (at least :data:`MIN_BLOCK`), so that a small image does not
+    sum a block of padding (the sum is the same; only its grouping changes)."""
+    block = min(block, max(MIN_BLOCK, 1 << max(len(values) - 1, 0).bit_length()))
     pad = (-len(values)) % block
     if len(values) == 0:
         pad = block

@@ -12,6 +12,7 @@ from __future__ import annotations
 import dataclasses
 from pathlib import Path
 
+import equinox as eqx
 import jax
 import numpy as np
 import pytest
@@ -44,7 +45,7 @@ def _scene(name: str, **render_settings):
 CASES = [
     ("hierarchical", "hierarchical", "marble_teapot.toml", {"max_samples": 4000}, RES, {}),
     ("direct", "direct", "marble_teapot.toml", {"max_samples": 4000}, RES, {}),
-    ("cached", "cached", "marble_teapot.toml", {"max_samples": 4000}, (64, 48), {"error_bound": 0.3}),
+    ("cached", "cached", "marble_teapot.toml", {"max_samples": 4000}, (64, 48), {"error_bound": 0.3, "always": True}),
     ("hierarchical_occluder", "hierarchical", "milk_box_on_floor.toml", {"max_samples": 4000}, RES, {}),
     ("photon", "photon", "photon_blocker.toml", {}, RES, {"n_photons": 3000}),
     ("layered", "layered", "layered_veins.toml", {}, RES, {"samples": 8}),
@@ -105,17 +106,15 @@ def test_images_unchanged_by_the_refactor(results, key):
     np.testing.assert_allclose(img, ref, rtol=1e-9, atol=1e-12 * float(ref.max()))
 
 
-@pytest.mark.parametrize("key", ["hierarchical", "photon", "layered"])
-def test_image_is_a_jax_function_of_the_medium(results, key):
-    """``Preparation.image`` is differentiable in the material: the gradient of the image sum along sigma_a agrees
-    with a central difference (the registry's promise to fit_image)."""
+def test_layered_image_is_a_jax_function_of_the_outer_layer(results):
+    """The layered method's ``Preparation.image(medium)`` is differentiable in the outer layer's material (through
+    ``with_outer_layer``): the gradient of the image sum along sigma_a agrees with a central difference. (The other
+    methods' image gradients are checked in their own tests: test_renderer, test_cache, photon/test_render.)"""
+    key = "layered"
     prep = results[key].prepared
     medium = resolve_method(results[key].report["method"]).params(_scene_of(key))
     grad = jax.grad(lambda m: prep.image(m).sum())(medium)
     h = 1e-6 * float(np.max(np.asarray(medium.sigma_a)))
-    plus = dataclasses.replace if False else None  # noqa: F841 (medium is an equinox module: use tree_at)
-    import equinox as eqx
-
     def at(delta):
         return float(prep.image(eqx.tree_at(lambda m: m.sigma_a, medium, medium.sigma_a + delta)).sum())
 
@@ -128,3 +127,38 @@ def _scene_of(key):
         if k == key:
             return _scene(name, **settings)
     raise KeyError(key)
+
+
+@pytest.mark.parametrize("key", ["photon", "layered"])
+def test_fit_image_through_the_new_methods(key):
+    """fit_image is a registry lookup: the photon and layered images (new to fitting) give back the material they
+    were rendered with (hierarchical, direct and cached fits: test_renderer, test_cache)."""
+    from fitting import fit_image
+
+    _, method, name, settings, _, options = next(c for c in CASES if c[0] == key)
+    scene = _scene(name, **settings)
+    scene = scene_with(scene, camera=dataclasses.replace(scene.camera, resolution=(16, 12)))
+    truth = resolve_method(method).params(scene)
+    target = np.asarray(prepare_method(scene, method, fit=True, **options).image(truth))
+    fit = fit_image(scene, target, method=method, max_pixels=80, **options)
+    assert fit.converged, fit.message
+    np.testing.assert_allclose(fit.sigma_a, truth.sigma_a, rtol=1e-4)
+    np.testing.assert_allclose(fit.sigma_s_prime, truth.sigma_s_prime, rtol=1e-4)
+
+
+def test_every_method_explains_itself_on_the_command_line(capsys, tmp_path):
+    """The CLI is a lookup too: ``--explain`` for every registered method prints its plan (one schema, with the
+    method's own items) and writes it with ``--json``."""
+    import json
+
+    from tests.cli.runner import run_cli
+
+    extra = {"photon": ["--photons", "300"], "layered": ["--samples", "4"]}
+    for method in method_names():
+        scene = ROOT / "examples" / ("layered_veins.toml" if method == "layered" else "photon_blocker.toml")
+        out = tmp_path / f"{method}.json"
+        code, stdout, err = run_cli(capsys, "render", scene, "--method", method, "--explain", "--quiet",
+                                    "--resolution", 16, 12, "--json", out, *extra.get(method, []))
+        assert code == 0, (method, err)
+        plan = json.loads(out.read_text())["plan"]
+        assert plan["method"] == method and plan["items"] and f"({method})" in stdout
