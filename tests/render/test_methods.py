@@ -129,18 +129,20 @@ def _scene_of(key):
     raise KeyError(key)
 
 
-@pytest.mark.parametrize("key", ["photon", "layered"])
-def test_fit_image_through_the_new_methods(key):
+@pytest.mark.parametrize("method, name, options, max_pixels", [
+    ("photon", "photon_marble_edge.toml", {"n_photons": 1500}, 60),
+    ("layered", "layered_veins.toml", {"samples": 8}, 80),
+])
+def test_fit_image_through_the_new_methods(method, name, options, max_pixels):
     """fit_image is a registry lookup: the photon and layered images (new to fitting) give back the material they
     were rendered with (hierarchical, direct and cached fits: test_renderer, test_cache)."""
     from fitting import fit_image
 
-    _, method, name, settings, _, options = next(c for c in CASES if c[0] == key)
-    scene = _scene(name, **settings)
+    scene = _scene(name)
     scene = scene_with(scene, camera=dataclasses.replace(scene.camera, resolution=(16, 12)))
     truth = resolve_method(method).params(scene)
     target = np.asarray(prepare_method(scene, method, fit=True, **options).image(truth))
-    fit = fit_image(scene, target, method=method, max_pixels=80, **options)
+    fit = fit_image(scene, target, method=method, max_pixels=max_pixels, **options)
     assert fit.converged, fit.message
     np.testing.assert_allclose(fit.sigma_a, truth.sigma_a, rtol=1e-4)
     np.testing.assert_allclose(fit.sigma_s_prime, truth.sigma_s_prime, rtol=1e-4)
