@@ -102,9 +102,9 @@ def _timed(prepare_points, exitance, medium):
 
 
 def _photon(scene, pts, nrm, n, eps):
-    from jaxsss.photon.render import _photon_exitance, prepare_photon
+    from jaxsss.photon.render import prepare_photon
 
-    return _timed(lambda: prepare_photon(scene, n_photons=n, eps=eps, points=(pts, nrm)), _photon_exitance,
+    return _timed(lambda: prepare_photon(scene, n_photons=n, eps=eps, points=(pts, nrm)), _exitance,
                   scene.material.medium)
 
 

@@ -255,12 +255,12 @@ def main(argv=None) -> int:
     # The hierarchical render (whole image) and a pixel subset for the direct reference.
     hier, h_seconds, h_compile = timed_render(scene, eps=EPS, resolution=res)
     assert not hier.plan.single_scattering
-    prep = hier.prepared
+    prep = hier.prepared.state
     q_full = prep.n_queries
     mask, pick = random_pixel_mask(prep.query_pixel, prep.shape, cfg["subset"])
     ref_res, _, _ = timed_render(scene, method="direct", resolution=res, pixel_mask=mask)
     ref = ref_res.image.reshape(-1, 3)[pick]
-    sub_prep = ref_res.prepared
+    sub_prep = ref_res.prepared.state
     same_samples = bool(np.array_equal(np.asarray(sub_prep.sample_pos), np.asarray(prep.sample_pos)))
     h_err = image_errors(hier.image.reshape(-1, 3)[pick], ref, exposure)
     camera_s = hier.report["timings"]["camera_rays"]

@@ -12,6 +12,13 @@ with the error bound ``a`` swept. On the default scene (``examples/marble_teapot
 
 Quick: the skin sphere at 64 x 64 with ``a`` in (0.3, 1), no reference.
 
+**End to end, as a user runs it** (issue 16): ``jaxsss render examples/marble_teapot.toml --method M --resolution R R``
+in a fresh process (``JAXSSS_COMPILATION_CACHE=off``: every run compiles), hierarchical against cached (a = 0.3,
+``--cache-always``), at 256 and 512 px (not in quick mode: two fresh processes per size). ``seconds`` is the process's
+wall clock (imports, scene, geometry, compilation, pass 2, writing the files); the report's stage split (``seconds``: plan, pass 1, tree,
+geometry, compile, pass 2, other) goes in the row. This is what decides the plan's rule
+(:func:`jaxsss.render.cache.caching_pays`).
+
 Error metrics, over the pixels that hit the object:
 
 - ``error`` = ``rms_paper``: the RMS difference of the **averaged RGB** of the images as displayed (exposure, clip,
@@ -44,11 +51,11 @@ ERROR_METRIC = "RMS of averaged display RGB vs the hierarchical image (the cachi
 DEFAULT_SCENE = "marble_teapot.toml"
 CONFIG = {
     "quick": dict(resolution=64, repeats=1, reference_density=None,
-                  scenes={"skin_sphere.toml": (0.3, 1.0)}, variants_a=None),
+                  scenes={"skin_sphere.toml": (0.3, 1.0)}, variants_a=None, end_to_end=()),
     "full": dict(resolution=512, repeats=2, reference_density=4.0,
                  scenes={"marble_teapot.toml": (0.05, 0.1, 0.3, 1.0, 3.0), "skin_sphere.toml": (0.3, 1.0),
                          "ketchup_torus.toml": (0.3, 1.0), "milk_box_on_floor.toml": (0.3, 1.0)},
-                 variants_a=0.3),
+                 variants_a=0.3, end_to_end=(256, 512)),
 }
 
 
@@ -81,10 +88,55 @@ def timed(fn, repeats: int):
     return result, best, compile_s
 
 
+def end_to_end(resolution: int, method: str, out_dir: Path) -> tuple[float, dict, np.ndarray]:
+    """``(wall seconds, report, linear image)`` of ``jaxsss render`` on the default scene in a fresh process."""
+    import json
+    import os
+    import subprocess
+
+    out = out_dir / f"e2e_{method}_{resolution}.png"
+    cmd = [sys.executable, "-m", "jaxsss", "render", str(ROOT / "examples" / DEFAULT_SCENE), "--method", method,
+           "--resolution", str(resolution), str(resolution), "-o", str(out), "--json", str(out.with_suffix(".json")),
+           "--quiet", "--no-exr"] + (["--cache-always"] if method == "cached" else [])
+    env = {**os.environ, "JAXSSS_COMPILATION_CACHE": "off", "PYTHONPATH": str(ROOT)}
+    t0 = time.perf_counter()
+    subprocess.run(cmd, check=True, env=env)
+    wall = time.perf_counter() - t0
+    report = json.loads(out.with_suffix(".json").read_text())
+    image = np.load(out.with_suffix(".npy"))
+    for suffix in (".png", ".json", ".npy"):
+        out.with_suffix(suffix).unlink()
+    return wall, report, image
+
+
+def end_to_end_rows(resolutions, out_dir: Path) -> tuple[list, dict]:
+    """The end-to-end rows (module docstring) and a summary of the cached method's gain per resolution."""
+    rows, gains = [], {}
+    exposure = float(scene_for(ROOT / "examples" / DEFAULT_SCENE).output.exposure)
+    for res in resolutions:
+        hier_s, hier, hier_img = end_to_end(res, "hierarchical", out_dir)
+        cached_s, cached, cached_img = end_to_end(res, "cached", out_dir)
+        hit = np.any(hier_img != 0, axis=-1)
+        e = cache_errors(cached_img, hier_img, hit, exposure)
+        for method, seconds, rep, err in (("hierarchical end to end", hier_s, hier, None),
+                                          ("cached end to end", cached_s, cached, e["rms_paper"])):
+            rows.append(make_row(NAME, method, f"{DEFAULT_SCENE} {res}px", err, ERROR_METRIC, seconds,
+                                 rep["seconds"]["compile"], scene=DEFAULT_SCENE, resolution=res, a=0.3,
+                                 n_shaded_points=rep["n_shaded_points"], n_caches=rep.get("n_caches"),
+                                 seconds_total_in_report=rep["seconds_total"], speedup=hier_s / seconds,
+                                 **{f"stage_{k}_seconds": v for k, v in rep["seconds"].items()}))
+        gains[f"{res}px"] = {"hierarchical_seconds": hier_s, "cached_seconds": cached_s, "speedup": hier_s / cached_s,
+                             "n_shaded_points": hier["n_shaded_points"], "rms_paper": e["rms_paper"],
+                             "hierarchical_stages": hier["seconds"], "cached_stages": cached["seconds"]}
+        print(f"end to end {res}x{res}: hierarchical {hier_s:.1f} s, cached {cached_s:.1f} s "
+              f"(x{hier_s / cached_s:.2f}), {hier['n_shaded_points']} shaded points, RMS {e['rms_paper']:.4f}",
+              flush=True)
+    return rows, gains
+
+
 def main(argv=None) -> int:
     args = parse_args(argv, __doc__.splitlines()[0])
     from jaxsss.render import render
-    from jaxsss.render.cache import render_cached
 
     cfg = CONFIG["quick" if args.quick else "full"]
     res = (cfg["resolution"], cfg["resolution"])
@@ -96,7 +148,7 @@ def main(argv=None) -> int:
         exposure = float(scene.output.exposure)
         hier, hier_s, hier_c = timed(lambda: render(scene, resolution=res), cfg["repeats"])
         hit = np.zeros(res[1] * res[0], dtype=bool)
-        hit[np.asarray(hier.prepared.query_pixel)] = True
+        hit[np.asarray(hier.prepared.state.query_pixel)] = True
         hit = hit.reshape(res[1], res[0])
         rep = hier.report
         rows.append(make_row(NAME, "hierarchical", scene_name, None, ERROR_METRIC, hier_s, hier_c, scene=scene_name,
@@ -124,9 +176,9 @@ def main(argv=None) -> int:
             runs += [(a, "analytic", False), (a, "none", False), (a, "far", True)]
         for a, gradient, one_pass in runs:
             result, seconds, compile_s = timed(
-                lambda: render_cached(scene, a, resolution=res, gradient=gradient, one_pass=one_pass),
+                lambda: render(scene, "cached", error_bound=a, resolution=res, gradient=gradient, one_pass=one_pass,
+                               always=True),
                 cfg["repeats"])
-            result.report.pop("_debug", None)
             r = result.report
             e = cache_errors(result.image, hier.image, hit, exposure)
             extra = {}
@@ -154,6 +206,8 @@ def main(argv=None) -> int:
         }
         del hier
         gc.collect()
+    e2e_rows, summary["end_to_end"] = end_to_end_rows(cfg["end_to_end"], Path(args.out))
+    rows += e2e_rows
     summary["wall_seconds"] = time.perf_counter() - t_start
     summary["peak_rss_gb"] = peak_rss_gb()
     notes = [
@@ -164,6 +218,8 @@ def main(argv=None) -> int:
         "cached seconds in the same process",
         "cached rows use the far-field gradient unless the method names another; '*_vs_reference' columns compare "
         "against a 4x-density hierarchical render (default scene)",
+        "'end to end' rows: wall clock of `jaxsss render` in a fresh process with the persistent compilation cache "
+        "off (compile included; compile_seconds is the report's compile stage); stage_*_seconds: the report's split",
     ]
     json_path, png_path = write_results(NAME + args.tag, rows, args.out,
                                         quick=args.quick, summary=summary, notes=notes,

@@ -216,7 +216,7 @@ def main(argv=None) -> int:
     # The reference: the direct sum on the subset.
     ref_res, _, _ = timed_render(scene, method="direct", resolution=res, pixel_mask=mask)
     ref = ref_res.image.reshape(-1, 3)[pick]
-    same_samples_direct = bool(np.array_equal(np.asarray(ref_res.prepared.sample_pos), base_sample_pos))
+    same_samples_direct = bool(np.array_equal(np.asarray(ref_res.prepared.state.sample_pos), base_sample_pos))
     rt = ref_res.report["timings"]
     n_sub = int(ref_res.report["n_shaded_points"])
     per_pixel = rt["pass2_sum"] / n_sub
@@ -237,11 +237,11 @@ def main(argv=None) -> int:
         full, seconds, compile_s = timed_render(scene, eps=eps, resolution=res)
         rep = full.report
         full_sub = full.image.reshape(-1, 3)[pick]
-        same_samples = bool(np.array_equal(np.asarray(full.prepared.sample_pos), base_sample_pos))
+        same_samples = bool(np.array_equal(np.asarray(full.prepared.state.sample_pos), base_sample_pos))
         extra_full = dict(pass_timings(rep), n_samples=rep["n_samples"], n_interactions=rep["n_interactions"],
                           interactions_per_point_mean=rep["interactions_per_point_mean"],
                           interactions_per_point_max=rep["interactions_per_point_max"],
-                          pair_blocks=int(full.prepared.pair_query.shape[0]),
+                          pair_blocks=int(full.prepared.state.pair_query.shape[0]),
                           seconds_total_report=rep["seconds_total"],
                           seconds_total_excluding_compile_report=rep["seconds_total_excluding_compile"])
         del full, rep
@@ -252,7 +252,7 @@ def main(argv=None) -> int:
             test, mask_vs_full = full_sub, None
         else:
             sub, _, _ = timed_render(scene, eps=eps, resolution=res, pixel_mask=mask)
-            same_samples = same_samples and bool(np.array_equal(np.asarray(sub.prepared.sample_pos),
+            same_samples = same_samples and bool(np.array_equal(np.asarray(sub.prepared.state.sample_pos),
                                                                 base_sample_pos))
             test = sub.image.reshape(-1, 3)[pick]
             del sub

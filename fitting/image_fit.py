@@ -1,13 +1,15 @@
 """Recover ``sigma_a`` and ``sigma_s'`` per channel from a rendered image (issue 5, "Differentiable in the material").
 
-The renderer exposes ``image = prepared.image(medium)`` once geometry, lights and interaction lists are fixed
-(:func:`jaxsss.render.prepare`). :func:`fit_image` builds that function on a random subset of the object's pixels,
+Every registered render method exposes ``image = prepared.image(medium)`` once its geometry is fixed
+(:func:`jaxsss.render.prepare_method`; the methods are those of :func:`jaxsss.render.method_names`).
+:func:`fit_image` looks the method up, builds that function on a random subset of the object's pixels,
 starts from the best of a small grid of (Rd, l_d) candidates per channel (through the reparameterisation, so the start
 is physically sensible without knowing the answer), and runs an Optimistix least-squares solve in the
 log-parameters. Residuals are relative: ``(model - target) / mean(target)`` per channel, on the chosen pixels.
 
-Fixed during the fit: ``eta`` and ``g`` (from the scene), the sample positions and the octree centroids (geometry), and
-the cut-off radius and shared-channel shortcuts of the scene plan are switched off (they depend on the material).
+Fixed during the fit: ``eta`` and ``g`` (from the scene), everything geometric (sample positions, octree centroids,
+cache positions, photon walks), and the plan's shortcuts that depend on the material (cut-off radius, shared channel)
+are switched off (``fit=True`` in the method's ``prepare``).
 """
 
 from __future__ import annotations
@@ -117,19 +119,21 @@ def _grid_start(residuals, args, eta, n_channels):
     return sa[best, np.arange(n_channels)], ss[best, np.arange(n_channels)]
 
 
-def fit_image(scene, target_image, *, method: str = "hierarchical", eps: float | None = None,
-              cache_error: float = 0.3, max_pixels: int | None = 4096, solver: str = "levenberg_marquardt", rtol: float = 1e-8,
-              atol: float = 1e-10, max_steps: int = 100, seed: int = 0, progress: bool = False) -> ImageFit:
+def fit_image(scene, target_image, *, method: str = "hierarchical", max_pixels: int | None = 4096,
+              solver: str = "levenberg_marquardt", rtol: float = 1e-8, atol: float = 1e-10, max_steps: int = 100,
+              seed: int = 0, progress: bool = False, **options) -> ImageFit:
     """Fit ``sigma_a`` and ``sigma_s'`` (per channel) of the scene's material to ``target_image``.
 
     Args:
         scene: the :class:`jaxsss.render.Scene` whose geometry, lights, camera, eta and g produced the target (its
             own sigma_a and sigma_s' are NOT used).
         target_image: ``(H, W, C)`` linear radiance at the camera's resolution.
-        method, eps: the renderer's pass-2 method (``"hierarchical"``, ``"direct"`` or ``"cached"``) and threshold.
-        cache_error: the cached method's error bound ``a``. Its cache positions are placed once with the scene's own
-            material (its ``l_d`` and split-disk constant) and stay fixed during the fit; ``S`` and ``grad S`` at
-            the caches are re-evaluated for every trial material.
+        method: a registered render method (:func:`jaxsss.render.method_names`: hierarchical, direct, cached,
+            photon, layered). The cached method places its caches once with the scene's own material (its ``l_d``
+            and split-disk constant) and keeps them; the photon method keeps its traced walks (source power is
+            reweighted, Eq. 8); the layered method fits the outer layer (``[material]``), the layers below fixed.
+        **options: the method's options (e.g. ``eps``; cached ``error_bound``; photon ``n_photons``; layered
+            ``samples``), as for :func:`jaxsss.render.render`.
         max_pixels: fit on at most this many lit pixels, chosen at random (``None``: all of them).
         solver: a name in :data:`fitting.SOLVERS`.
         rtol, atol, max_steps: Optimistix termination.
@@ -138,7 +142,7 @@ def fit_image(scene, target_image, *, method: str = "hierarchical", eps: float |
     Returns:
         An :class:`ImageFit`; check ``converged``.
     """
-    from jaxsss.render import prepare
+    from jaxsss.render import prepare_method, resolve_method
 
     target = np.asarray(target_image, dtype=np.float64)
     w, h = scene.camera.resolution
@@ -150,16 +154,10 @@ def fit_image(scene, target_image, *, method: str = "hierarchical", eps: float |
     seconds = {}
     t0 = time.perf_counter()
     mask = _choose_pixels(target, max_pixels, seed)
-    if method == "cached":
-        from jaxsss.render.cache import prepare_cached
-
-        prepared = prepare_cached(scene, cache_error, eps=eps, pixel_mask=mask, cutoff=False, share_channels=False,
-                                  progress=progress)[0]
-    else:
-        prepared, _, _ = prepare(scene, method=method, eps=eps, pixel_mask=mask, cutoff=False,
-                                 share_channels=False, progress=progress)
+    entry = resolve_method(method)
+    prepared = prepare_method(scene, entry.name, pixel_mask=mask, fit=True, progress=progress, **options).state
     seconds["prepare"] = time.perf_counter() - t0
-    medium = scene.material.medium
+    medium = entry.params(scene)
     eta, g, fresnel = medium.eta, medium.g, medium.fresnel
     n_channels = target.shape[-1]
     scale = jnp.asarray(np.maximum(target[mask].mean(axis=0), 1e-300))

@@ -14,7 +14,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-__all__ = ["as_float", "check_range", "is_concrete", "require"]
+__all__ = ["as_float", "bound_text", "check_integer", "check_range", "is_concrete", "require"]
 
 
 def is_concrete(x) -> bool:
@@ -37,7 +37,8 @@ def as_float(x, name: str):
     return jnp.asarray(arr)
 
 
-def _bound_text(lo, hi, lo_open, hi_open) -> str:
+def bound_text(lo, hi, lo_open, hi_open) -> str:
+    """The interval ``[lo, hi]`` as text, with ``(``/``)`` for open or missing bounds, e.g. ``(0, inf)``."""
     left = "(" if (lo_open or lo is None) else "["
     right = ")" if (hi_open or hi is None) else "]"
     lo_s = "-inf" if lo is None else f"{lo:g}"
@@ -60,7 +61,7 @@ def check_range(x, name: str, lo=None, hi=None, *, lo_open=False, hi_open=False,
     """
     x = as_float(x, name)
     label = f"{owner}({name}=" if owner else f"{name}="
-    allowed = _bound_text(lo, hi, lo_open, hi_open)
+    allowed = bound_text(lo, hi, lo_open, hi_open)
 
     def bad_mask(xp, v):
         bad = xp.isnan(v)
@@ -95,3 +96,17 @@ def require(x, bad, message: str):
             raise ValueError(message)
         return x
     return eqx.error_if(x, bad, message)
+
+
+def check_integer(value, name: str, lo: int, hi: int | None = None, *, owner: str | None = None) -> int:
+    """Return ``value`` as an ``int`` after checking it is an integer (not a bool; a NumPy integer is fine) in
+    ``[lo, hi]`` (``hi=None``: no upper bound). For static arguments: sizes, counts, seeds, chunk lengths.
+
+    Raises:
+        ValueError: ``owner(name=value) must be an integer in the allowed range [lo, hi]``.
+    """
+    if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or value < lo or (
+            hi is not None and value > hi):
+        label = f"{owner}({name}={value!r})" if owner else f"{name}={value!r}"
+        raise ValueError(f"{label} must be an integer in the allowed range [{lo}, {'inf)' if hi is None else f'{hi}]'}")
+    return int(value)

@@ -9,6 +9,10 @@ Diffuse Fresnel reflectance ``F_dr(eta)`` is for diffuse light *inside* the medi
 
     F_dr(eta) = 2 * integral_0^1 F_internal(eta, mu) mu dmu.
 
+Refraction lives here too, once for the whole project: :func:`snell_cosine` (Snell's law), :func:`refract` (the
+refracted direction) and :func:`fresnel_unpolarised` (the unchecked kernel), each with an ``xp`` array namespace so
+the NumPy photon tracer uses the same lines as the JAX renderer.
+
 Methods are chosen from :data:`F_DR_METHODS` by name:
 
 - ``"poly"`` (default, as in the papers): Groenhuis et al. 1983 for ``eta >= 1``
@@ -39,21 +43,47 @@ __all__ = [
     "F_dr_poly",
     "F_dt",
     "fresnel_reflectance",
+    "fresnel_unpolarised",
+    "refract",
     "resolve_fresnel_method",
+    "snell_cosine",
 ]
 
 
-def _fresnel_unpolarised(cos_i, eta_t_over_i):
-    """Unpolarised Fresnel reflectance for incidence cosine ``cos_i`` onto a medium of relative index n_t/n_i."""
-    sin2_t = (1.0 - cos_i * cos_i) / (eta_t_over_i * eta_t_over_i)
+def snell_cosine(cos_i, rel, *, xp=jnp):
+    """Snell's law: ``(cos_t, ok)``, the cosine of the refracted angle for incidence cosine ``cos_i`` (in ``[0, 1]``)
+    onto a medium of relative index ``rel = n_t / n_i``, and ``ok`` False under total internal reflection (then
+    ``cos_t = 0``). ``xp``: the array namespace (``numpy`` for the tracers that run outside JAX).
+
+    ``sin^2 theta_t = (1 - cos_i^2) / rel^2``; the double ``where`` keeps the derivative of the square root finite
+    under total internal reflection."""
+    # Snell: sin^2 t = sin^2 i / rel^2.
+    sin2_t = (1.0 - cos_i * cos_i) / (rel * rel)
+    ok = sin2_t < 1.0
+    return xp.where(ok, xp.sqrt(xp.where(ok, 1.0 - sin2_t, 1.0)), 0.0), ok
+
+
+def refract(d, normal, cos_i, cos_t, rel, *, xp=jnp):
+    """The refracted direction of travel (unit in exact arithmetic), ``(..., 3)``: ``d / rel + (cos_i / rel - cos_t)
+    n`` for a unit direction ``d`` arriving at a surface whose unit normal ``n`` faces the incident side
+    (``cos_i = -d . n``), with ``cos_t`` from :func:`snell_cosine` and ``rel = n_t / n_i``."""
+    # Snell's law in vector form (Heckbert): t = d / rel + (cos_i / rel - cos_t) n.
+    return d / rel + xp.expand_dims(cos_i / rel - cos_t, -1) * normal
+
+
+def fresnel_unpolarised(cos_i, rel, *, xp=jnp):
+    """Unpolarised Fresnel reflectance for incidence cosine ``cos_i`` in ``[0, 1]`` onto a medium of relative index
+    ``rel = n_t / n_i``, unchecked (the kernel of :func:`fresnel_reflectance`, for callers that validated their
+    input; ``xp = numpy`` outside JAX). Total internal reflection and grazing incidence give 1."""
+    sin2_t = (1.0 - cos_i * cos_i) / (rel * rel)
     tir = sin2_t >= 1.0
     # Snell's law; the safe sqrt keeps gradients finite on the TIR branch.
-    cos_t = jnp.sqrt(jnp.where(tir, 0.5, 1.0 - sin2_t))
+    cos_t = xp.sqrt(xp.where(tir, 0.5, 1.0 - sin2_t))
     # Fresnel equations, s and p amplitudes.
-    r_s = (cos_i - eta_t_over_i * cos_t) / (cos_i + eta_t_over_i * cos_t)
-    r_p = (eta_t_over_i * cos_i - cos_t) / (eta_t_over_i * cos_i + cos_t)
+    r_s = (cos_i - rel * cos_t) / (cos_i + rel * cos_t)
+    r_p = (rel * cos_i - cos_t) / (rel * cos_i + cos_t)
     F = 0.5 * (r_s * r_s + r_p * r_p)
-    return jnp.where(tir, jnp.ones_like(F), F)
+    return xp.where(tir, xp.ones_like(F), F)
 
 
 def fresnel_reflectance(eta, cos_theta, *, from_inside: bool = False):
@@ -71,7 +101,7 @@ def fresnel_reflectance(eta, cos_theta, *, from_inside: bool = False):
     eta = check_range(eta, "eta", 0.0, None, lo_open=True, owner="fresnel_reflectance")
     cos_theta = check_range(cos_theta, "cos_theta", 0.0, 1.0, owner="fresnel_reflectance")
     rel = 1.0 / eta if from_inside else eta
-    return _fresnel_unpolarised(cos_theta, rel)
+    return fresnel_unpolarised(cos_theta, rel)
 
 
 def F_dr_poly(eta):
@@ -95,7 +125,7 @@ def _F_dr_no_tir(eta):
     """``2 int_0^1 F_internal(eta, mu) mu dmu`` for ``eta <= 1`` (no total internal reflection); smooth in mu."""
     mu = jnp.asarray(_GL_MU, dtype=eta.dtype)
     w = jnp.asarray(_GL_W, dtype=eta.dtype)
-    F = _fresnel_unpolarised(mu, 1.0 / eta[..., None])
+    F = fresnel_unpolarised(mu, 1.0 / eta[..., None])
     return 2.0 * jnp.sum(w * mu * F, axis=-1)
 
 

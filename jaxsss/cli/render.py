@@ -1,9 +1,9 @@
-"""``jaxsss render SCENE.toml -o out.png``: render a translucent object (hierarchical, direct, cached, layered or
-photon method).
+"""``jaxsss render SCENE.toml -o out.png``: render a translucent object with any registered method
+(:mod:`jaxsss.render.methods`: hierarchical, direct, cached, photon, layered).
 
 Writes ``out.png`` (sRGB), ``out.npy`` (linear radiance, H x W x 3, W/(mm^2 sr)), ``out.exr`` and, with ``--json``,
-the report: timings per pass (compilation apart), the sample count, interactions per shaded point, the plan and the
-image statistics. ``--explain`` prints the scene plan and stops.
+the report (the same schema for every method): the end-to-end time split by stage (compilation apart), the
+method's counts, the plan and the image statistics. ``--explain`` prints the scene plan and stops.
 """
 
 from __future__ import annotations
@@ -17,7 +17,22 @@ import numpy as np
 from jaxsss.cli._common import UNITS_EPILOG, CLIError, number
 
 NAME = "render"
-HELP = "render a scene file (TOML) of a translucent mesh with the hierarchical or direct dipole sum"
+HELP = "render a scene file (TOML) of a translucent mesh with any registered render method"
+
+METHOD_CHOICES = ("hierarchical", "direct", "cached", "photon", "layered")
+"""The built-in methods (``--method``); the registry (:func:`jaxsss.render.method_names`) is checked at run time, so
+a method registered by another module is accepted too."""
+
+# command-line option -> (the methods' keyword, its check: (lo, open) for numbers)
+_OPTIONS = {
+    "eps": ("eps", "(0, inf)"),
+    "photons": ("n_photons", "[1, inf)"),
+    "samples": ("samples", "[1, inf)"),
+    "cache_error": ("error_bound", "(0, inf)"),
+    "cache_gradient": ("gradient", None),
+    "one_pass": ("one_pass", None),
+    "cache_always": ("always", None),
+}
 
 
 def add_parser(subparsers) -> argparse.ArgumentParser:
@@ -35,30 +50,34 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
     p.add_argument("-o", "--output", type=Path, default=None,
                    help="output PNG (sRGB); OUT.npy (linear) and OUT.exr are written beside it "
                         "(default: the scene name with .png in the current directory)")
-    p.add_argument("--method", choices=("hierarchical", "direct", "cached", "layered", "photon"), default=None,
-                   help="pass-2 method (default: the scene's [render].method); cached = irradiance caching with "
-                        "gradients (Keng et al. 2006) on top of the hierarchical sum; layered = single scattering "
-                        "ray-marched through the scene's [layers] subsurface textures (Francois et al.), plus the "
-                        "outer layer's diffusion where the plan says so; photon = photon diffusion (Donner and "
-                        "Jensen 2007): photons traced into the mesh store volumetric sources, summed hierarchically "
-                        "with the blended dipole, quadpole and multipole; [[blocker]] meshes cast volumetric shadows")
+    p.add_argument("--method", default=None, metavar="NAME",
+                   help="render method, one of the registry's: " + ", ".join(METHOD_CHOICES) + " (default: the "
+                        "scene's [render].method); cached = irradiance caching with gradients (Keng et al. 2006) "
+                        "on top of the hierarchical sum; layered = single scattering ray-marched through the "
+                        "scene's [layers] subsurface textures (Francois et al.), plus the outer layer's diffusion "
+                        "where the plan says so; photon = photon diffusion (Donner and Jensen 2007): photons "
+                        "traced into the mesh store volumetric sources, summed hierarchically with the blended "
+                        "dipole, quadpole and multipole; [[blocker]] meshes cast volumetric shadows")
     p.add_argument("--photons", type=int, default=None, metavar="N",
                    help="photon method: photons traced from the lights, >= 1 (default: [render].photons)")
     p.add_argument("--samples", type=int, default=None, metavar="N",
                    help="layered method: samples per view ray, >= 1 (default: [layers].samples)")
-    p.add_argument("--cache-error", type=number, default=0.3, metavar="A",
+    p.add_argument("--cache-error", type=number, default=None, metavar="A",
                    help="cached method: relative error bound a of the split-disk weights, > 0, dimensionless "
-                        "(default 0.3: 12x faster than hierarchical at mean CIEDE2000 0.45 on the default scene)")
-    p.add_argument("--cache-gradient", choices=("far", "analytic", "autodiff", "none"), default="far",
+                        "(default 0.3; see docs/benchmarks.md for its speed and error end to end)")
+    p.add_argument("--cache-gradient", choices=("far", "analytic", "autodiff", "none"), default=None,
                    help="cached method: grad S in the interpolation (Eq. 10): the far-field part of the analytic "
                         "gradient (default; the near-field term follows sample noise), the full analytic gradient "
                         "(Eq. 9), the same by autodiff, or none (plain weighted mean); W/mm^3")
-    p.add_argument("--one-pass", action="store_true",
+    p.add_argument("--one-pass", action="store_true", default=None,
                    help="cached method: interpolate from the caches made so far (single pass) instead of all")
+    p.add_argument("--cache-always", action="store_true", default=None,
+                   help="cached method: cache even where the plan leaves caching out (below 20000 shaded points it "
+                        "costs more end to end than it saves; see --explain)")
     p.add_argument("--debug-images", action="store_true",
                    help="cached method: also write OUT_caches.png, OUT_gradient.png and OUT_variance.png")
     p.add_argument("--eps", type=number, default=None,
-                   help="solid-angle threshold of the hierarchical sum, sr (Eq. 12; default: the scene's)")
+                   help="solid-angle threshold of the hierarchical sums, sr (Eq. 12; default: the scene's)")
     p.add_argument("--resolution", type=int, nargs=2, metavar=("W", "H"), default=None,
                    help="image size in pixels (default: the scene's camera)")
     p.add_argument("--explain", action="store_true", help="print the scene plan (terms kept and left out) and exit")
@@ -69,135 +88,87 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
     return p
 
 
-def run(args) -> int:
-    from jaxsss.render import load_scene, make_plan, render, write_outputs
+def method_options(args, entry) -> dict:
+    """The options given on the command line, checked, as the method's keywords; an option the method does not take
+    is a one-line error naming the methods that do."""
+    from jaxsss.render import METHODS
 
-    if args.eps is not None and args.eps <= 0:
-        raise CLIError(f"--eps {args.eps:g} is outside the allowed range (0, inf)")
+    options = {}
+    for attr, (keyword, allowed) in _OPTIONS.items():
+        value = getattr(args, attr)
+        if value is None:
+            continue
+        flag = "--" + attr.replace("_", "-")
+        if keyword not in entry.options:
+            takers = [m.name for m in METHODS.values() if keyword in m.options]
+            raise CLIError(f"{flag} applies to --method {' / '.join(takers)}, not {entry.name}")
+        if allowed is not None and not (value > 0 if allowed.startswith("(") else value >= 1):
+            raise CLIError(f"{flag} {value:g} is outside the allowed range {allowed}")
+        options[keyword] = value
+    return options
+
+
+def run(args) -> int:
+    from jaxsss.render import explain_method, load_scene, render, resolve_method, write_outputs
+
     if args.resolution is not None and min(args.resolution) < 1:
         raise CLIError(f"--resolution {args.resolution} must be two positive integers")
     scene = load_scene(args.scene)
-    if args.method == "cached" and args.cache_error <= 0:
-        raise CLIError(f"--cache-error {args.cache_error:g} is outside the allowed range (0, inf)")
-    if args.method == "layered":
-        return _run_layered(args, scene)
-    if args.method == "photon":
-        return _run_photon(args, scene)
+    try:
+        entry = resolve_method(args.method or scene.render.method)
+    except ValueError as err:
+        raise CLIError(f"--method: {err}") from None
+    options = method_options(args, entry)
+    if args.debug_images and entry.name != "cached":
+        raise CLIError(f"--debug-images applies to --method cached, not {entry.name}")
+    if args.debug_images:
+        options["always"] = True  # the debug images show the caches
+    resolution = None if args.resolution is None else tuple(args.resolution)
     if args.explain:
-        if args.method == "cached":
-            from jaxsss.render.cache import explain_cached
-
-            plan, _ = explain_cached(scene, args.cache_error, eps=args.eps, resolution=args.resolution,
-                                     one_pass=args.one_pass)
-        else:
-            plan = make_plan(scene, method=args.method, eps=args.eps)
-        print(f"scene plan for {args.scene}:")
+        plan = explain_method(scene, entry.name, resolution=resolution, **options)
+        print(f"scene plan for {args.scene} ({entry.name}):")
         print(plan.explain())
         if args.json:
             args.json.parent.mkdir(parents=True, exist_ok=True)
             args.json.write_text(json.dumps({"plan": plan.to_dict()}, indent=2, default=float) + "\n")
         return 0
     out = args.output or Path(args.scene.with_suffix(".png").name)
-    if args.method == "cached":
-        from jaxsss.render.cache import debug_images, render_cached
+    result = render(scene, entry.name, resolution=resolution, progress=not args.quiet, **options)
+    if args.debug_images and "placement" in result.prepared.extras:
+        from jaxsss.render.cache import debug_images
+        from jaxsss.render.output import write_png
 
-        result = render_cached(scene, args.cache_error, eps=args.eps, resolution=args.resolution,
-                               one_pass=args.one_pass, gradient=args.cache_gradient, progress=not args.quiet)
-        debug = result.report.pop("_debug")
-        if args.debug_images:
-            from jaxsss.render.output import write_png
-
-            for name, img in debug_images(result.prepared, debug).items():
-                scaled = img / img.max() if img.max() > 0 else img
-                write_png(out.with_name(f"{out.stem}_{name}.png"), np.repeat(scaled[..., None], 3, axis=-1))
-    else:
-        result = render(scene, method=args.method, eps=args.eps, resolution=args.resolution,
-                        progress=not args.quiet)
+        for name, img in debug_images(result.prepared).items():
+            scaled = img / img.max() if img.max() > 0 else img
+            write_png(out.with_name(f"{out.stem}_{name}.png"), np.repeat(scaled[..., None], 3, axis=-1))
     paths = write_outputs(out, result.image, result.report, exposure=scene.output.exposure, exr=not args.no_exr,
                           json_path=args.json)
     if not args.quiet:
-        r = result.report
-        t = r["timings"]
-        print(f"rendered {args.scene} -> {', '.join(paths.values())}")
-        print(f"  {r['resolution'][0]}x{r['resolution'][1]}, {r['n_samples']} samples, {r['n_shaded_points']} shaded "
-              f"points, {r['interactions_per_point_mean']:.1f} interactions per point (max "
-              f"{r['interactions_per_point_max']})")
-        if r["method"] == "cached":
-            print(f"  {r['n_caches']} caches ({100 * r['cache_ratio']:.2f}% of the shaded points), estimated "
-                  f"interpolation error mean {r['interpolation_error_estimate_mean']:.3g}, max "
-                  f"{r['interpolation_error_estimate_max']:.3g}")
-        print("  " + ", ".join(f"{k} {v:.2f} s" for k, v in t.items()) + f"; total {r['seconds_total']:.2f} s")
+        print(f"rendered {args.scene} ({entry.name}) -> {', '.join(paths.values())}")
+        print("  " + summary(result.report))
+        stages = result.report["seconds"]
+        print("  " + ", ".join(f"{k} {v:.2f} s" for k, v in stages.items())
+              + f"; total {result.report['seconds_total']:.2f} s")
     return 0
 
 
-def _explain_items(args, method: str, items) -> int:
-    """``--explain`` for the methods with their own plan items: print them, and write them with ``--json``."""
-    from jaxsss.render.plan import explain_items
-
-    print(f"scene plan for {args.scene} ({method}):")
-    print(explain_items(items))
-    if args.json:
-        args.json.parent.mkdir(parents=True, exist_ok=True)
-        args.json.write_text(json.dumps({"plan": [i._asdict() for i in items]}, indent=2) + "\n")
-    return 0
-
-
-def _run_photon(args, scene) -> int:
-    """``--method photon``: photon tracing, the source octree and the blended hierarchical sum."""
-    from jaxsss.photon.render import prepare_photon, render_photon
-    from jaxsss.render import write_outputs
-
-    if args.photons is not None and args.photons < 1:
-        raise CLIError(f"--photons {args.photons} is outside the allowed range [1, inf)")
-    if args.explain:
-        _, items, _ = prepare_photon(scene, n_photons=args.photons, eps=args.eps, resolution=args.resolution,
-                                     progress=not args.quiet)
-        return _explain_items(args, "photon", items)
-    out = args.output or Path(args.scene.with_suffix(".png").name)
-    image, report, _ = render_photon(scene, n_photons=args.photons, eps=args.eps, resolution=args.resolution,
-                                     progress=not args.quiet)
-    paths = write_outputs(out, image, report, exposure=scene.output.exposure, exr=not args.no_exr,
-                          json_path=args.json)
-    if not args.quiet:
-        t = report["timings"]
-        print(f"rendered {args.scene} (photon) -> {', '.join(paths.values())}")
-        print(f"  {report['resolution'][0]}x{report['resolution'][1]}, {report['n_photons']} photons, "
-              f"{report['n_sources']} sources, {report['n_shaded_points']} shaded points, "
-              f"{report['interactions_per_point_mean']:.1f} interactions per point "
-              f"({report['n_interactions_multipole']} with the multipole, {report['n_pairs_blocked']} blocked)")
-        print("  " + ", ".join(f"{k} {v:.2f} s" for k, v in t.items()) + f"; total {report['seconds_total']:.2f} s")
-    return 0
-
-
-def _run_layered(args, scene) -> int:
-    """``--method layered``: the march (and the outer layer's hierarchical diffusion if the plan keeps it)."""
-    from jaxsss.layered import render_layered
-    from jaxsss.layered.plan import layered_plan
-    from jaxsss.render import render, write_outputs
-
-    if scene.layers is None:
-        raise CLIError(f"{args.scene}: --method layered needs a [layers] table (see examples/layered_veins.toml)")
-    if args.samples is not None and args.samples < 1:
-        raise CLIError(f"--samples {args.samples} is outside the allowed range [1, inf)")
-    diffusion, items = layered_plan(scene, scene.layers, samples=args.samples)
-    if args.explain:
-        return _explain_items(args, "layered", items)
-    out = args.output or Path(args.scene.with_suffix(".png").name)
-    result = render_layered(scene, scene.layers, samples=args.samples, resolution=args.resolution)
-    image, report = result.image, dict(result.report)
-    report["plan"] = [i._asdict() for i in items]
-    if diffusion:
-        diffuse = render(scene, method="hierarchical", eps=args.eps, resolution=args.resolution,
-                         progress=not args.quiet)
-        image = result.single_scattering + diffuse.image  # the diffusion image carries background and occluders
-        report["diffusion"] = {"seconds_total": diffuse.report["seconds_total"],
-                               "n_samples": diffuse.report["n_samples"]}
-    paths = write_outputs(out, image, report, exposure=scene.output.exposure, exr=not args.no_exr,
-                          json_path=args.json)
-    if not args.quiet:
-        print(f"rendered {args.scene} (layered) -> {', '.join(paths.values())}")
-        print(f"  {report['samples']} samples per view ray, {report['n_shaded_points']} shaded points, march "
-              f"{report['timings']['march']:.2f} s after compilation"
-              + (f"; outer-layer diffusion {report['diffusion']['seconds_total']:.2f} s" if diffusion else
-                 "; no diffusion term (see --explain)"))
-    return 0
+def summary(report: dict) -> str:
+    """One line of the report's counts: resolution, shaded points and the method's own."""
+    r = report
+    parts = [f"{r['resolution'][0]}x{r['resolution'][1]}", f"{r['n_shaded_points']} shaded points"]
+    if "n_samples" in r:
+        parts.append(f"{r['n_samples']} samples")
+    if "interactions_per_point_mean" in r:
+        parts.append(f"{r['interactions_per_point_mean']:.1f} interactions per point (max "
+                     f"{r['interactions_per_point_max']})")
+    if "n_caches" in r:
+        parts.append(f"{r['n_caches']} caches ({100 * r['cache_ratio']:.2f}% of the shaded points), estimated "
+                     f"interpolation error mean {r['interpolation_error_estimate_mean']:.3g}, max "
+                     f"{r['interpolation_error_estimate_max']:.3g}")
+    if "n_photons" in r:
+        parts.append(f"{r['n_photons']} photons, {r['n_sources']} sources ({r['n_interactions_multipole']} pairs "
+                     f"with the multipole, {r['n_pairs_blocked']} blocked)")
+    if "samples" in r:
+        parts.append(f"{r['samples']} samples per view ray"
+                     + ("; outer-layer diffusion" if "diffusion" in r else "; no diffusion term (see --explain)"))
+    return ", ".join(parts)

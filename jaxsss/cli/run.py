@@ -230,15 +230,18 @@ def step_render(ctx: RunContext) -> None:
     resolution = ctx.results.get("resolution")
     if resolution is not None:
         scene = dataclasses.replace(scene, camera=dataclasses.replace(scene.camera, resolution=tuple(resolution)))
+    if ctx.results.get("max_samples") is not None:
+        scene = dataclasses.replace(scene, render=dataclasses.replace(scene.render,
+                                                                      max_samples=ctx.results["max_samples"]))
     result = render(scene, progress=ctx.results.get("progress", False))
     out = ctx.out_dir / "marble_teapot.png"
     paths = write_outputs(out, result.image, result.report, exposure=scene.output.exposure,
                           json_path=ctx.out_dir / "marble_teapot.json")
-    r, t = result.report, result.report["timings"]
+    r = result.report
     ctx.say(result.plan.explain())
     ctx.say(f"{r['resolution'][0]}x{r['resolution'][1]}: {r['n_samples']} irradiance samples, {r['n_shaded_points']} "
             f"shaded points, {r['interactions_per_point_mean']:.0f} interactions per point (eps {r['eps']:g})")
-    ctx.say("seconds: " + ", ".join(f"{k} {v:.2f}" for k, v in t.items()) +
+    ctx.say("seconds: " + ", ".join(f"{k} {v:.2f}" for k, v in r["seconds"].items()) +
             f"; total {r['seconds_total']:.1f} ({r['seconds_total_excluding_compile']:.1f} without compilation)")
     ctx.say(f"wrote {', '.join(paths.values())}")
     ctx.results["render"] = (scene, result)
@@ -292,6 +295,8 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
                    help=f"photons of the simulated measurement, >= 1000 (default {MEASURE_PHOTONS})")
     p.add_argument("--resolution", type=int, nargs=2, default=None, metavar=("W", "H"),
                    help="image size of the render, pixels (default: the scene's, 512 x 512)")
+    p.add_argument("--max-samples", type=int, default=None, metavar="N",
+                   help="cap on the render's irradiance samples, >= 16 (default: the scene's [render].max_samples)")
     p.add_argument("--progress", action="store_true", help="show progress bars for the render passes")
     p.set_defaults(run=run)
     return p
@@ -311,6 +316,10 @@ def run(args) -> int:
         if min(args.resolution) < 1:
             raise CLIError(f"--resolution {args.resolution} must be two positive integers")
         ctx.results["resolution"] = args.resolution
+    if args.max_samples is not None:
+        if args.max_samples < 16:
+            raise CLIError(f"--max-samples {args.max_samples} is outside the allowed range [16, inf)")
+        ctx.results["max_samples"] = args.max_samples
     ctx.results["progress"] = args.progress
     for i, step in enumerate(STEPS, 1):
         ctx.say(f"== step {i}/{len(STEPS)}: {step.name}: {step.description}")

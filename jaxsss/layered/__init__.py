@@ -8,7 +8,7 @@ call per frame, differentiable in the per-layer coefficients. See ``docs/layered
 
 - Coefficients: :class:`LayerStack`; presets :func:`layer_preset` (``"fish"``: the paper's Table 1).
 - Phase functions: :func:`hg_phase`, :func:`schlick_phase`, :func:`schlick_k_from_g` (convention in
-  :mod:`jaxsss.layered.phase`).
+  :mod:`jaxsss.phase`).
 - Textures: :class:`SubsurfaceTexture`, :func:`load_texture_png`, :func:`procedural_texture` (constant, veins,
   blobs).
 - Scenes: :func:`load_layered_scene` (a scene file with a ``[layers]`` table), :func:`parse_layers`,
@@ -23,7 +23,7 @@ from jaxsss.layered.config import LayerSpec, layer_spec, load_layered_scene, par
 from jaxsss.layered.layers import LayerStack
 from jaxsss.layered.lighting import LightArrays, light_arrays
 from jaxsss.layered.march import PixelGeometry, march, march_pixels, reduced_intensity
-from jaxsss.layered.phase import (
+from jaxsss.phase import (
     PHASE_FUNCTIONS,
     hg_phase,
     phase_value,

@@ -3,8 +3,9 @@
 :func:`parse_layers` validates the table (as a dict, from :mod:`tomllib`) and returns a :class:`LayerSpec`;
 errors are :class:`jaxsss.render.scene.SceneError` naming the file and the dotted key, e.g.
 ``examples/x.toml: [layers.layer[1].sigma_t] 0.5 (element 0) is below sigma_s = 1; allowed range [sigma_s, inf)``.
-:func:`load_layered_scene` reads a scene file, hands everything but ``[layers]`` to
-:func:`jaxsss.render.scene.parse_scene`, and parses ``[layers]`` itself.
+The section is registered with the scene floor (:func:`jaxsss.render.scene.register_section`), so
+:func:`jaxsss.render.load_scene` parses it with the same validator (:class:`~jaxsss.render.scene.SceneKeys`) as
+the rest of the file; :func:`load_layered_scene` also checks that the table is there.
 
 Schema (units mm and 1/mm)::
 
@@ -43,15 +44,15 @@ from __future__ import annotations
 import math
 import os
 from dataclasses import dataclass
-from pathlib import Path
 
 import numpy as np
 
+from jaxsss._validate import check_integer
 from jaxsss.layered.layers import LayerStack
-from jaxsss.layered.phase import PHASE_FUNCTIONS
+from jaxsss.phase import PHASE_FUNCTIONS
 from jaxsss.layered.presets import LAYER_PRESETS, layer_preset
 from jaxsss.layered.textures import PROCEDURAL_TEXTURES, SubsurfaceTexture, load_texture_png, procedural_texture
-from jaxsss.render.scene import Scene, SceneError
+from jaxsss.render.scene import Scene, SceneError, SceneKeys, register_section
 
 __all__ = ["DIFFUSION_CHOICES", "LayerSpec", "WRAP_CHOICES", "layer_spec", "load_layered_scene", "parse_layers"]
 
@@ -90,8 +91,7 @@ def layer_spec(stack: LayerStack, texture: SubsurfaceTexture, **knobs) -> LayerS
         raise ValueError(f"layer_spec(texture=...): {texture.n_layers} texture channels for {stack.n_layers} layers")
     texture = texture.layers(stack.n_layers) if texture.n_layers > stack.n_layers else texture
     spec = LayerSpec(stack, texture, **knobs)
-    if not (isinstance(spec.samples, int) and spec.samples >= 1):
-        raise ValueError(f"layer_spec(samples={spec.samples!r}): allowed range [1, inf) (integer)")
+    check_integer(spec.samples, "samples", 1, owner="layer_spec")
     if not 0.0 < spec.plane_eps < 1.0:
         raise ValueError(f"layer_spec(plane_eps={spec.plane_eps!r}): allowed range (0, 1)")
     if spec.depth_max is not None and not (spec.depth_max > 0 and math.isfinite(spec.depth_max)):
@@ -101,61 +101,7 @@ def layer_spec(stack: LayerStack, texture: SubsurfaceTexture, **knobs) -> LayerS
     return spec
 
 
-class _Keys:
-    def __init__(self, path: str, base_dir):
-        self.path = path
-        self.base_dir = Path(base_dir) if base_dir is not None else Path.cwd()
-
-    def error(self, key, message) -> SceneError:
-        return SceneError(self.path, key, message)
-
-    def only(self, table: dict, key: str, allowed):
-        if not isinstance(table, dict):
-            raise self.error(key, f"must be a table [{key}], not {type(table).__name__}")
-        for k in table:
-            if k not in allowed:
-                raise self.error(f"{key}.{k}", f"unknown key; allowed: {', '.join(sorted(allowed))}")
-
-    def number(self, v, key, lo=None, hi=None, lo_open=False, hi_open=False, where=""):
-        if isinstance(v, bool) or not isinstance(v, (int, float)):
-            raise self.error(key, f"{v!r}{where} is not a number")
-        x = float(v)
-        bad = not math.isfinite(x) or (lo is not None and (x <= lo if lo_open else x < lo)) or \
-            (hi is not None and (x >= hi if hi_open else x > hi))
-        if bad:
-            left = "(" if lo_open or lo is None else "["
-            right = ")" if hi_open or hi is None else "]"
-            rng = f"{left}{'-inf' if lo is None else f'{lo:g}'}, {'inf' if hi is None else f'{hi:g}'}{right}"
-            raise self.error(key, f"{x:g}{where} is outside the allowed range {rng}")
-        return x
-
-    def values(self, v, key, n=None, **bounds) -> np.ndarray:
-        """One number or a list of numbers (of length ``n`` when given)."""
-        if not isinstance(v, (list, tuple)):
-            return np.array([self.number(v, key, **bounds)])
-        if len(v) == 0 or (n is not None and len(v) != n):
-            raise self.error(key, f"{v!r} is not one number or {n if n else 'a list of'} values")
-        return np.array([self.number(x, key, where=f" (element {i})", **bounds) for i, x in enumerate(v)])
-
-    def integer(self, v, key, lo):
-        if isinstance(v, bool) or not isinstance(v, int):
-            raise self.error(key, f"{v!r} is not an integer")
-        if v < lo:
-            raise self.error(key, f"{v} is outside the allowed range [{lo}, inf)")
-        return v
-
-    def boolean(self, v, key):
-        if not isinstance(v, bool):
-            raise self.error(key, f"{v!r} is not true or false")
-        return v
-
-    def choice(self, v, key, choices):
-        if not isinstance(v, str) or v not in choices:
-            raise self.error(key, f"{v!r} is not one of: {', '.join(choices)}")
-        return v
-
-
-def _parse_layer(k: _Keys, table, key: str) -> dict:
+def _parse_layer(k: SceneKeys, table, key: str) -> dict:
     k.only(table, key, _LAYER_KEYS)
     for name in ("sigma_s", "sigma_t"):
         if name not in table:
@@ -175,7 +121,7 @@ def _parse_layer(k: _Keys, table, key: str) -> dict:
     return dict(name=str(table.get("name", key)), sigma_s=s, sigma_t=t, g=g, phase=phase)
 
 
-def _parse_texture(k: _Keys, table, n_layers: int) -> SubsurfaceTexture:
+def _parse_texture(k: SceneKeys, table, n_layers: int) -> SubsurfaceTexture:
     key = "layers.texture"
     if not isinstance(table, dict):
         raise k.error(key, "must be a table [layers.texture]")
@@ -189,13 +135,7 @@ def _parse_texture(k: _Keys, table, n_layers: int) -> SubsurfaceTexture:
         files = [files] if isinstance(files, str) else files
         if not isinstance(files, list) or not files or not all(isinstance(f, str) for f in files):
             raise k.error(f"{key}.files", f"{table['files']!r} is not a path or a list of paths")
-        paths = []
-        for f in files:
-            p = Path(f).expanduser()
-            p = p if p.is_absolute() else k.base_dir / p
-            if not p.is_file():
-                raise k.error(f"{key}.files", f"file {f!r} does not exist (looked for {p})")
-            paths.append(p)
+        paths = [k.file(f, f"{key}.files") for f in files]
         if "depth_scale_mm" not in table:
             raise k.error(f"{key}.depth_scale_mm", "missing: the depth of a black pixel, mm (white = 0)")
         scale = k.values(table["depth_scale_mm"], f"{key}.depth_scale_mm", lo=0.0, lo_open=True)
@@ -229,7 +169,10 @@ def parse_layers(table: dict, *, path: str = "<scene>", base_dir=None) -> LayerS
     Raises:
         SceneError: a bad or missing entry, naming the file and the dotted key ``layers....``.
     """
-    k = _Keys(str(path), base_dir)
+    return _parse_layers(table, SceneKeys(str(path), base_dir))
+
+
+def _parse_layers(table: dict, k: SceneKeys) -> LayerSpec:
     k.only(table, "layers", _TOP)
     has_preset, has_layers = "preset" in table, "layer" in table
     if has_preset == has_layers:
@@ -279,6 +222,9 @@ def parse_layers(table: dict, *, path: str = "<scene>", base_dir=None) -> LayerS
         return layer_spec(stack, texture, **knobs)
     except ValueError as err:
         raise k.error("layers", str(err)) from None
+
+
+register_section("layers", _parse_layers)
 
 
 def load_layered_scene(path) -> tuple[Scene, LayerSpec]:

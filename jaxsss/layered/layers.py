@@ -2,7 +2,7 @@
 
 Layer ``i`` (counting from the surface, 0 first) has a scattering coefficient ``sigma_s[i]`` and an extinction
 coefficient ``sigma_t[i] = sigma_a[i] + sigma_s[i]`` (both 1/mm, per colour channel), an anisotropy ``g[i]`` and a
-phase function ``phase[i]`` (``"hg"`` or ``"schlick"``, see :mod:`jaxsss.layered.phase`). Where the layers sit is
+phase function ``phase[i]`` (``"hg"`` or ``"schlick"``, see :mod:`jaxsss.phase`). Where the layers sit is
 the business of the subsurface texture (:mod:`jaxsss.layered.textures`): texture channel ``i`` holds the depth of
 the bottom of layer ``i``. Below the deepest layer nothing scatters or attenuates (Francois et al., Eq. 12 sums the
 path lengths of the textured layers only).
@@ -19,7 +19,7 @@ import jax.numpy as jnp
 from jaxtyping import Array, Float
 
 from jaxsss._validate import check_range, is_concrete, require
-from jaxsss.layered.phase import PHASE_FUNCTIONS, SCHLICK_G_MAX
+from jaxsss.phase import PHASE_FUNCTIONS, SCHLICK_G_MAX
 
 __all__ = ["LayerStack"]
 
@@ -51,7 +51,7 @@ class LayerStack(eqx.Module):
             sigma_s: ``(n,)`` or ``(n, C)`` scattering coefficients, 1/mm (``(n,)`` means one channel).
             sigma_t: same shape rules; extinction, 1/mm, ``>= sigma_s``.
             g: scalar, ``(n,)`` or ``(n, C)`` anisotropy in ``(-1, 1)`` (``"schlick"`` layers:
-                ``|g| < SCHLICK_G_MAX = 0.9381``, see :mod:`jaxsss.layered.phase`).
+                ``|g| < SCHLICK_G_MAX = 0.9381``, see :mod:`jaxsss.phase`).
             phase: one name for every layer or one per layer (``"hg"``, ``"schlick"``).
             names: optional layer names (default ``layer0``, ``layer1``, ...).
 

@@ -41,7 +41,7 @@ import jax.numpy as jnp
 from jaxsss.layered.layers import LayerStack
 from jaxsss.layered.lighting import LightArrays, lights_at
 from jaxsss.layered.localise import find_layer, layer_thickness, texture_lookup, texture_offset
-from jaxsss.layered.phase import PHASE_FUNCTIONS
+from jaxsss.phase import PHASE_FUNCTIONS
 
 __all__ = ["PixelGeometry", "march", "march_pixels", "phase_mixture", "reduced_intensity", "sample_state"]
 

@@ -3,7 +3,7 @@
 ``fish``: Table 1 of G. Francois, S. Pattanaik, K. Bouatouch and G. Breton, "Subsurface Texture Mapping", INRIA
 research report (also IEEE CG&A 28(1), 2008). The fish model's three layers, 1/mm, channels R, G, B; the paper uses
 its Schlick phase function with the listed ``g`` (here read as the Henyey-Greenstein anisotropy and converted to
-Schlick's ``k``, see :mod:`jaxsss.layered.phase`).
+Schlick's ``k``, see :mod:`jaxsss.phase`).
 
 =========  ==================  ==================  ====
 layer      sigma_s (R, G, B)   sigma_t (R, G, B)   g

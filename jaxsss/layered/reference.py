@@ -35,7 +35,7 @@ from jaxsss.layered.layers import LayerStack
 from jaxsss.layered.lighting import LightArrays, lights_at
 from jaxsss.layered.localise import texture_lookup
 from jaxsss.layered.march import PixelGeometry
-from jaxsss.layered.phase import PHASE_FUNCTIONS
+from jaxsss.phase import PHASE_FUNCTIONS
 from jaxsss.layered.tangents import SurfaceFrames, frames_at
 from jaxsss.render.rays import OBJECT_TRANSLUCENT, SceneGeometry
 

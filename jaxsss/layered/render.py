@@ -16,6 +16,7 @@ could not, and marched through thin parts).
 
 from __future__ import annotations
 
+import dataclasses
 import time
 from typing import Any, NamedTuple
 
@@ -28,15 +29,21 @@ from jaxsss.layered.config import LayerSpec
 from jaxsss.layered.layers import LayerStack, min_extinction
 from jaxsss.layered.lighting import LightArrays, light_arrays
 from jaxsss.layered.march import PixelGeometry, march_pixels
+from jaxsss.layered.plan import layered_plan
 from jaxsss.layered.planes import fit_planes, neighbourhood_radius, planes_at
 from jaxsss.layered.tangents import barycentric, frames_at, surface_frames, wrap_for
+from jaxsss._validate import check_integer
 from jaxsss.medium import Medium
+from jaxsss.render.plan import make_plan
+from jaxsss.render.renderer import prepare as prepare_diffusion
 from jaxsss.render.camera import camera_rays
-from jaxsss.render.lights import light_field
+from jaxsss.render.methods import Preparation, register_method, render
 from jaxsss.render.rays import OBJECT_TRANSLUCENT, SceneGeometry
+from jaxsss.render.shading import constant_image, face_the_eye
 
-__all__ = ["COS_MIN", "LayeredPrepared", "LayeredRenderResult", "outer_layer_medium", "prepare_layered",
-           "render_layered", "shading_geometry"]
+__all__ = ["COS_MIN", "LayeredMethodState", "LayeredPrepared", "LayeredRenderResult", "layered_medium",
+           "outer_layer_medium", "prepare_layered", "prepare_layered_method", "render_layered", "shading_geometry",
+           "with_outer_layer"]
 
 COS_MIN = 0.05
 """Floor on ``NS_P . w_out`` in Eq. 15: the march is at most ``Depth_max / COS_MIN`` long."""
@@ -130,9 +137,7 @@ def shading_geometry(scene, spec: LayerSpec, geometry: SceneGeometry, points, fa
     radius = neighbourhood_radius(min_extinction(spec.stack, 0), spec.plane_eps)
     planes = planes if planes is not None else fit_planes(mesh, frames.normal, radius)
     uv, n, T, B = frames_at(frames, mesh, faces, points)
-    # A smooth normal can face away from the eye at silhouettes: reflect it about the view direction.
-    back = np.einsum("ij,ij->i", n, w_out) < 0
-    n[back] = n[back] - 2 * np.einsum("ij,ij->i", n[back], w_out[back])[:, None] * w_out[back]
+    n = face_the_eye(n, w_out)
     T = T - np.einsum("ij,ij->i", T, n)[:, None] * n
     B = B - np.einsum("ij,ij->i", B, n)[:, None] * n
     bary = barycentric(mesh, faces, points)
@@ -186,23 +191,6 @@ def _chunked(sg: ShadingGeometry, chunk: int) -> PixelGeometry:
                          prep(sg.T), prep(sg.B), prep(sg.uv), prep(length), prep(sg.visible))
 
 
-def _constant_image(scene, geometry, rays, hits, n_channels):
-    """Background for missed rays and grey Lambertian occluders (``albedo / pi * E``), ``(H * W, C)``."""
-    h, w = rays.shape
-    constant = np.zeros((h * w, n_channels))
-    background = np.broadcast_to(np.asarray(scene.output.background, dtype=np.float64), (n_channels,))
-    np.add.at(constant, rays.pixel[~hits.hit], background / rays.spp)
-    on_occ = np.flatnonzero(hits.obj >= 1)
-    if on_occ.size:
-        y = hits.position[on_occ]
-        ny = geometry.shading_normals(hits.face[on_occ], y)
-        ny = np.where(np.einsum("ij,ij->i", ny, rays.directions[on_occ])[:, None] > 0, -ny, ny)
-        direct = light_field(scene.lights, y, ny, geometry).irradiance.sum(axis=1)
-        albedo = np.stack([scene.occluders[k - 1].albedo for k in hits.obj[on_occ]])
-        np.add.at(constant, rays.pixel[on_occ], albedo / np.pi * direct / rays.spp)
-    return constant
-
-
 def prepare_layered(scene, spec: LayerSpec, *, resolution=None, samples: int | None = None,
                     pixel_mask=None) -> tuple[LayeredPrepared, ShadingGeometry, dict]:
     """Geometry-only work for a frame.
@@ -224,7 +212,7 @@ def prepare_layered(scene, spec: LayerSpec, *, resolution=None, samples: int | N
     keep = np.ones(len(rays.pixel), bool) if pixel_mask is None else np.asarray(pixel_mask).reshape(-1)[rays.pixel]
     hits = geometry.first_hit(rays.origins, rays.directions)
     n_channels = spec.stack.n_channels
-    constant = _constant_image(scene, geometry, rays, hits, n_channels)
+    constant = constant_image(scene, geometry, rays, np.arange(len(rays.pixel)), hits, n_channels)
     timings["camera_rays"] = time.perf_counter() - t0
     t0 = time.perf_counter()
     on_obj = np.flatnonzero((hits.obj == OBJECT_TRANSLUCENT) & keep)
@@ -241,60 +229,138 @@ def prepare_layered(scene, spec: LayerSpec, *, resolution=None, samples: int | N
     return prepared, sg, info
 
 
+class LayeredMethodState(eqx.Module):
+    """The registered ``layered`` method's state: the march and, where the plan keeps it, the outer layer's
+    hierarchical diffusion. ``image(medium)`` takes the outer layer from ``medium`` (:func:`with_outer_layer`; the
+    scene's ``[material]`` describes that layer) and keeps the layers below from the spec."""
+
+    march: LayeredPrepared
+    stack: LayerStack
+    diffusion: Any  # jaxsss.render.Prepared of the outer layer's dipole sum, or None
+
+    shape = property(lambda self: self.march.shape, doc="``(H, W)`` of the image.")
+    spp = property(lambda self: self.march.spp, doc="Camera rays per pixel.")
+
+    def single_scattering(self, medium: Medium):
+        """``(H, W, C)`` the layered single-scattering term alone."""
+        return self.march.single_scattering(with_outer_layer(self.stack, medium))
+
+    def image(self, medium: Medium):
+        """``(H, W, C)`` linear image: single scattering, plus the outer layer's diffusion (which carries the
+        background and occluders) or else the constant image."""
+        ss = self.single_scattering(medium)
+        if self.diffusion is None:
+            return ss + self.march.constant.reshape(ss.shape)
+        return ss + self.diffusion.image(medium)
+
+
+def with_outer_layer(stack: LayerStack, medium: Medium) -> LayerStack:
+    """``stack`` with its first layer from ``medium`` (the inverse of :func:`outer_layer_medium`): ``sigma_s =
+    sigma_s' / (1 - g)`` with the layer's own ``g`` and ``sigma_t = sigma_a + sigma_s``; a JAX function of the
+    medium."""
+    g = jnp.broadcast_to(stack.g[0], (stack.n_channels,))
+    sigma_s = medium.sigma_s_prime / (1.0 - g)
+    return stack.replace(sigma_s=stack.sigma_s.at[0].set(sigma_s),
+                         sigma_t=stack.sigma_t.at[0].set(medium.sigma_a + sigma_s))
+
+
+def _layer_spec(scene, spec, samples=None):
+    if samples is not None:
+        check_integer(samples, "samples", 1, owner="render(method='layered')")
+    spec = scene.layers if spec is None else spec
+    if spec is None:
+        where = scene.path or "the scene"
+        raise ValueError(f"{where}: the layered method needs a [layers] table (see examples/layered_veins.toml)")
+    return spec
+
+
+def prepare_layered_method(scene, *, resolution=None, pixel_mask=None, fit=False, progress=False, samples=None,
+                           eps=None, spec: LayerSpec | None = None) -> Preparation:
+    """The registered ``layered`` method's preparation: :func:`prepare_layered` and, where
+    :func:`~jaxsss.layered.plan.layered_plan` keeps it, the outer layer's hierarchical diffusion
+    (:func:`jaxsss.render.prepare` with ``eps``).
+
+    Raises:
+        ValueError: the scene has no ``[layers]`` table and no ``spec`` is given; ``samples < 1``.
+    """
+    spec = _layer_spec(scene, spec, samples)
+    diffusion, items = layered_plan(scene, spec, samples=samples)
+    march, _, info = prepare_layered(scene, spec, resolution=resolution, samples=samples, pixel_mask=pixel_mask)
+    info.pop("geometry")
+    timings = info.pop("timings")
+    diffuse = None
+    if diffusion:
+        diffuse, plan, dinfo = prepare_diffusion(scene, method="hierarchical", eps=eps, resolution=resolution,
+                                                 progress=progress, pixel_mask=pixel_mask, cutoff=not fit,
+                                                 share_channels=not fit)
+        for key, value in dinfo["timings"].items():
+            timings[key] = timings.get(key, 0.0) + value
+        info["diffusion"] = {k: dinfo[k] for k in ("n_samples", "n_interactions", "interactions_per_point_mean")}
+    else:
+        plan = make_plan(scene, eps=eps)
+    stack = spec.stack
+    plan = plan._replace(method="layered", items=items)
+    diagnostics = {"samples": march.n_samples, "layers": list(stack.names), "phase": list(stack.phase),
+                   "texture": spec.texture.source, "texture_shape": list(spec.texture.shape),
+                   "n_lights": march.lights.n_lights, **info}
+    return Preparation("layered", LayeredMethodState(march, stack, diffuse), plan, diagnostics, timings)
+
+
+def layered_medium(scene) -> Medium:
+    """The layered method's default material: the scene's ``[material]`` (the outer layer)."""
+    return scene.material.medium
+
+
+def _explain_registered(scene, *, resolution=None, samples=None, eps=None, spec=None):
+    spec = _layer_spec(scene, spec, samples)
+    _, items = layered_plan(scene, spec, samples=samples)
+    return make_plan(scene, eps=eps)._replace(method="layered", items=items)
+
+
+register_method("layered", prepare_layered_method,
+                "single scattering ray-marched through the scene's [layers] subsurface textures (Francois et al.), "
+                "plus the outer layer's diffusion where the plan says so", options=("samples", "eps", "spec"),
+                params=layered_medium, explain=_explain_registered)
+
+
 class LayeredRenderResult(NamedTuple):
-    """``image`` ``(H, W, C)`` linear (single scattering + background/occluders); ``single_scattering`` the layered
-    term alone (add a diffusion image to it); ``report`` JSON-ready; ``prepared`` for re-rendering."""
+    """``image`` ``(H, W, C)`` linear (what ``jaxsss render --method layered`` writes); ``single_scattering`` the
+    layered term alone; ``report`` the render report; ``prepared`` the registry's
+    :class:`~jaxsss.render.methods.Preparation` (state: :class:`LayeredMethodState`)."""
 
     image: np.ndarray
     single_scattering: np.ndarray
     report: dict[str, Any]
-    prepared: LayeredPrepared
+    prepared: Preparation
 
 
-def render_layered(scene, spec: LayerSpec, *, samples: int | None = None, resolution=None,
+def render_layered(scene, spec: LayerSpec | None = None, *, samples: int | None = None, resolution=None,
                    stack: LayerStack | None = None) -> LayeredRenderResult:
-    """Render ``scene`` with the layered single-scattering method (``jaxsss render --method layered``).
+    """Render ``scene`` with the layered method (``jaxsss render --method layered``, through the registry's driver
+    :func:`jaxsss.render.render`): single scattering plus the outer layer's diffusion where the plan keeps it.
 
     Args:
         scene: the loaded scene (mesh with UVs, lights, camera, occluders, output).
-        spec: the ``[layers]`` description (:func:`~jaxsss.layered.config.load_layered_scene`).
+        spec: the ``[layers]`` description (default ``scene.layers``).
         samples: ``N`` samples per view ray (default ``spec.samples``).
         resolution: ``(W, H)`` overriding the camera's.
-        stack: coefficients overriding ``spec.stack`` (same number of layers).
+        stack: coefficients overriding ``spec.stack`` (same number of layers); its outer layer then also gives
+            the diffusion term's material (:func:`outer_layer_medium` with the scene's eta and the layer's g).
     """
-    t_all = time.perf_counter()
-    prepared, _, info = prepare_layered(scene, spec, resolution=resolution, samples=samples)
-    stack = stack if stack is not None else spec.stack
-    # Compile apart (ahead of time), then one timed run: the frame is marched once.
-    t0 = time.perf_counter()
-    march = _radiance.lower(prepared, stack, prepared.n_samples).compile()
-    compile_s = time.perf_counter() - t0
-    t0 = time.perf_counter()
-    ss = jax.block_until_ready(_to_image(prepared, march(prepared, stack, prepared.n_samples), with_constant=False))
-    march_s = time.perf_counter() - t0
-    image = np.asarray(ss) + np.asarray(prepared.constant).reshape(ss.shape)
-    timings = {**info.pop("timings"), "march_compile": compile_s, "march": march_s}
-    info.pop("geometry")
-    report = {
-        "method": "layered",
-        "samples": prepared.n_samples,
-        "layers": list(stack.names),
-        "phase": list(stack.phase),
-        "texture": spec.texture.source,
-        "texture_shape": list(spec.texture.shape),
-        "n_lights": prepared.lights.n_lights,
-        **info,
-        "timings": timings,
-        "seconds_total": time.perf_counter() - t_all,
-        "frames_per_second_after_compile": 1.0 / march_s if march_s > 0 else None,
-        "image_max": float(image.max()) if image.size else 0.0,
-        "image_mean": float(image.mean()) if image.size else 0.0,
-    }
-    return LayeredRenderResult(image, np.asarray(ss), report, prepared)
+    spec = scene.layers if spec is None else spec
+    medium = None
+    if stack is not None:
+        spec = dataclasses.replace(spec, stack=stack)
+        eta = scene.material.medium.eta
+        medium = outer_layer_medium(stack, eta)
+    result = render(scene, "layered", resolution=resolution, medium=medium, samples=samples, spec=spec)
+    medium = layered_medium(scene) if medium is None else medium
+    ss = np.asarray(result.prepared.state.single_scattering(medium))
+    return LayeredRenderResult(result.image, ss, result.report, result.prepared)
 
 
 def outer_layer_medium(stack: LayerStack, eta: float = 1.3) -> Medium:
-    """The first layer as a :class:`jaxsss.Medium` (``sigma_a = sigma_t - sigma_s``, ``sigma_s' = (1 - g) sigma_s``),
-    for a diffusion term of the outer layer from the hierarchical renderer."""
+    """The first layer as a :class:`jaxsss.Medium` (``sigma_a = sigma_t - sigma_s``, ``sigma_s' = (1 - g) sigma_s``,
+    the layer's ``g``), for a diffusion term of the outer layer from the hierarchical renderer."""
     g = jnp.broadcast_to(stack.g[0], (stack.n_channels,))
-    return Medium(stack.sigma_a[0], stack.sigma_s[0] * (1.0 - g), eta)
+    return Medium(stack.sigma_a[0], stack.sigma_s[0] * (1.0 - g), eta, g)

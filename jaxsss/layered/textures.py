@@ -27,6 +27,8 @@ from collections.abc import Sequence
 from dataclasses import dataclass
 
 import numpy as np
+
+from jaxsss._validate import check_integer
 from scipy import ndimage
 
 __all__ = [
@@ -154,9 +156,7 @@ def _thicknesses(thickness, name: str) -> np.ndarray:
 
 
 def _size(size, name: str) -> int:
-    if isinstance(size, bool) or not isinstance(size, (int, np.integer)) or not 1 <= size <= 8192:
-        raise ValueError(f"{name}(size={size!r}): allowed range [1, 8192] (integer texels per side)")
-    return int(size)
+    return check_integer(size, "size", 1, 8192, owner=name)  # texels per side
 
 
 def _stack(thick: np.ndarray) -> np.ndarray:

@@ -2,7 +2,7 @@
 
 Photons traced into the object (:mod:`~jaxsss.photon.trace`) store diffusion sources at their first scattering; a
 volumetric octree (:mod:`~jaxsss.photon.tree`) sums them hierarchically with the blended dipole, quadpole and
-multipole of Eq. 15 (:mod:`~jaxsss.photon.render`, ``jaxsss render --method photon``); the same walks continued to
+multipole of Eq. 15 (:mod:`~jaxsss.photon.render`, registered as the render method ``photon``: ``jaxsss render --method photon``); the same walks continued to
 their exits are the mesh Monte Carlo reference (:mod:`~jaxsss.photon.reference`).
 """
 
@@ -13,7 +13,6 @@ from jaxsss.photon.render import (
     PhotonPrepared,
     photon_geometry,
     prepare_photon,
-    render_photon,
     source_power,
     trace_scene,
 )
@@ -36,7 +35,6 @@ __all__ = [
     "pair_lists",
     "photon_geometry",
     "prepare_photon",
-    "render_photon",
     "source_power",
     "source_tree",
     "surface_exitance",

@@ -26,6 +26,7 @@ from typing import NamedTuple
 
 import numpy as np
 
+from jaxsss._validate import check_integer
 from jaxsss.render.lights import spot_factor
 
 __all__ = ["PhotonRays", "emit_photons"]
@@ -144,8 +145,7 @@ def emit_photons(lights: Sequence, centre, radius: float, n_photons: int, *, see
     Returns:
         :class:`PhotonRays`; their powers sum to each light's flux into the sphere (the spot factor included).
     """
-    if not (isinstance(n_photons, (int, np.integer)) and n_photons >= 1):
-        raise ValueError(f"emit_photons(n_photons={n_photons!r}) must be an integer in [1, inf)")
+    check_integer(n_photons, "n_photons", 1, owner="emit_photons")
     if not (math.isfinite(radius) and radius > 0):
         raise ValueError(f"emit_photons(radius={radius!r}) is outside the allowed range (0, inf) mm")
     if not lights:

@@ -21,6 +21,7 @@ import numpy as np
 import trimesh
 from scipy.spatial import cKDTree
 
+from jaxsss._validate import check_integer
 from jaxsss.photon.trace import Exits, PhotonTrace
 
 __all__ = ["SurfaceExitance", "mesh_monte_carlo", "surface_exitance"]
@@ -68,8 +69,7 @@ def surface_exitance(exits: Exits, mesh: trimesh.Trimesh, points, normals, radiu
     if not (0.0 < cos_max < 1.0):
         raise ValueError(f"surface_exitance(cos_max={cos_max!r}) is outside the allowed range (0, 1): the area is "
                          "measured by rays down the point's normal, which only see faces facing its way")
-    if not (isinstance(area_rays, (int, np.integer)) and area_rays >= 16):
-        raise ValueError(f"surface_exitance(area_rays={area_rays!r}) must be an integer in [16, inf)")
+    check_integer(area_rays, "area_rays", 16, owner="surface_exitance")
     points = np.asarray(points, dtype=np.float64)
     normals = np.asarray(normals, dtype=np.float64)
     normals = normals / np.linalg.norm(normals, axis=1, keepdims=True)

@@ -44,7 +44,7 @@ from typing import NamedTuple
 import numpy as np
 from tqdm import tqdm
 
-from jaxsss.mc._kernel import _fresnel
+from jaxsss.fresnel import fresnel_unpolarised, refract, snell_cosine
 from jaxsss.photon.emit import PhotonRays
 from jaxsss.render.rays import OBJECT_NONE, OBJECT_TRANSLUCENT, SceneGeometry
 
@@ -118,14 +118,17 @@ class PhotonTrace(NamedTuple):
 
 
 def _fresnel_np(cos_i, rel):
+    """``(F, cos_t)`` at incidence cosine ``cos_i`` onto relative index ``rel = n_t / n_i`` (the physics core's
+    Fresnel and Snell, in NumPy)."""
+    cos_i = np.asarray(cos_i, dtype=np.float64)
     with np.errstate(invalid="ignore", divide="ignore"):
-        return _fresnel(np.asarray(cos_i, dtype=np.float64), rel, xp=np)
+        return fresnel_unpolarised(cos_i, rel, xp=np), snell_cosine(cos_i, rel, xp=np)[0]
 
 
 def _refract(d, n, cos_i, cos_t, rel):
     """Refracted unit direction for incidence ``d`` on a surface whose unit normal ``n`` faces the incident side
-    (``cos_i = -d . n``), onto relative index ``rel = n_t / n_i`` (Snell)."""
-    t = d / rel + (cos_i / rel - cos_t)[:, None] * n
+    (``cos_i = -d . n``), onto relative index ``rel = n_t / n_i`` (Snell, :func:`jaxsss.fresnel.refract`)."""
+    t = refract(d, n, cos_i, cos_t, rel, xp=np)
     return t / np.linalg.norm(t, axis=1, keepdims=True)
 
 

@@ -49,6 +49,7 @@ import jax.numpy as jnp
 
 from jaxsss import _config  # noqa: F401  (float64)
 from jaxsss._validate import check_range, require
+from jaxsss.fresnel import snell_cosine
 from jaxsss.medium import Medium
 from jaxsss.profiles._beam import DEFAULT_NODES, beam_nodes, check_nodes
 from jaxsss.profiles._sources import point_source_exitance
@@ -116,7 +117,8 @@ def refracted_direction(theta_i, eta):
     sin_t = jnp.sin(theta_i) / eta
     sin_t = require(sin_t, sin_t >= 1.0, "refracted_direction(theta_i=...): at or beyond the critical angle for "
                     "eta < 1 no light enters; allowed range sin(theta_i) < eta")
-    return sin_t, jnp.sqrt((1.0 - sin_t) * (1.0 + sin_t))
+    # Snell's law (jaxsss.fresnel.snell_cosine).
+    return sin_t, snell_cosine(jnp.cos(theta_i), eta)[0]
 
 
 # --- Eq. 8: the deterministic quadrature --------------------------------------------------------------------------
@@ -156,7 +158,7 @@ def _sources_exitance(x, X, Y, sin_t, cos_t, medium, coeff):
 def _oblique_kernel(X, Y, medium, theta_i, coeff, n_nodes):
     # Snell's law into the medium (eta = n_inside / n_outside).
     sin_t = jnp.sin(theta_i) / medium.eta
-    cos_t = jnp.sqrt((1.0 - sin_t) * (1.0 + sin_t))
+    cos_t, _ = snell_cosine(jnp.cos(theta_i), medium.eta)
     # Closest approach of the beam line to (X, Y, 0): at x0 = X sin theta_t, distance b = sqrt(X^2 cos^2 + Y^2).
     x0 = X * sin_t
     b = jnp.sqrt((X * cos_t) ** 2 + Y * Y)

@@ -8,11 +8,16 @@ the material is a JAX function of arrays, so ``prepared.image(medium)`` is diffe
   :class:`SceneError` naming the file and key. Built-in meshes: :func:`builtin_mesh` (sphere, box, slab, torus,
   teapot).
 - The plan: :func:`make_plan` -> :class:`ScenePlan` (terms kept and left out, one reason each).
-- Rendering: :func:`prepare` (geometry once) -> :class:`Prepared` with ``image(medium)``; :func:`render` (the whole
-  job with timings and report) -> :class:`RenderResult`; :func:`write_outputs` (PNG, NPY, EXR, JSON).
-- Irradiance caching with gradients (Keng et al. 2006): :func:`prepare_cached`, :func:`render_cached`
-  (``jaxsss render --method cached``), :func:`explain_cached` (the plan with the cache ratio), :data:`GRADIENTS`.
-- Pieces: :func:`build_octree`, :func:`build_interactions`, :mod:`jaxsss.render.radiance`.
+- Render methods (:mod:`jaxsss.render.methods`): every method is registered (:func:`register_method`,
+  :func:`method_names`: hierarchical, direct, cached, photon, layered); :func:`prepare_method` does a method's
+  geometry once -> :class:`Preparation` with ``image(medium)``; :func:`render` is the one driver (compile apart,
+  the one report with the time split by stage) -> :class:`RenderResult`; :func:`write_outputs` (PNG, NPY, EXR,
+  JSON).
+- The hierarchical and direct methods' own builder: :func:`prepare` -> :class:`Prepared`. Irradiance caching with
+  gradients (Keng et al. 2006): :func:`prepare_cached`, :func:`explain_cached` (the plan with the cache ratio),
+  :data:`GRADIENTS`.
+- Shared pieces: :mod:`jaxsss.render.shading` (shaded points, the constant image), :mod:`jaxsss.render.pairs`
+  (interaction lists in blocks), :func:`build_octree`, :func:`build_interactions`, :mod:`jaxsss.render.radiance`.
 """
 
 from jaxsss.render.cache import (
@@ -21,7 +26,6 @@ from jaxsss.render.cache import (
     explain_cached,
     place_caches,
     prepare_cached,
-    render_cached,
 )
 from jaxsss.render.interactions import (
     Interactions,
@@ -38,7 +42,21 @@ from jaxsss.render.meshes import (
 from jaxsss.render.octree import Octree, build_octree
 from jaxsss.render.output import encode_srgb, write_outputs
 from jaxsss.render.plan import PlanItem, ScenePlan, make_plan
-from jaxsss.render.renderer import Prepared, RenderResult, prepare, render
+from jaxsss.render.methods import (
+    METHODS,
+    REPORT_KEYS,
+    STAGES,
+    Preparation,
+    RenderMethod,
+    RenderResult,
+    explain_method,
+    method_names,
+    prepare_method,
+    register_method,
+    render,
+    resolve_method,
+)
+from jaxsss.render.renderer import Prepared, prepare
 from jaxsss.render.scene import (
     Camera,
     Light,
@@ -55,6 +73,16 @@ from jaxsss.render.scene import (
 
 __all__ = [
     "BUILTIN_MESHES",
+    "METHODS",
+    "Preparation",
+    "REPORT_KEYS",
+    "RenderMethod",
+    "STAGES",
+    "explain_method",
+    "method_names",
+    "prepare_method",
+    "register_method",
+    "resolve_method",
     "CachedPrepared",
     "Camera",
     "GRADIENTS",
@@ -85,7 +113,6 @@ __all__ = [
     "prepare_cached",
     "prepare",
     "render",
-    "render_cached",
     "scene_with",
     "transform_matrix",
     "uv_at",

@@ -47,6 +47,7 @@ Decisions (written down as the issue asks):
 
 from __future__ import annotations
 
+import dataclasses
 import time
 from typing import Any, NamedTuple
 
@@ -60,18 +61,35 @@ from jaxsss.fresnel import fresnel_reflectance
 from jaxsss.medium import Medium
 from jaxsss.reflectance import medium_total_diffuse_reflectance
 from jaxsss.render import radiance as rad
+from jaxsss.render.camera import camera_rays
+from jaxsss.render.methods import Preparation, register_method, resolve_method
+from jaxsss.render.pairs import pair_info, pair_lists
+from jaxsss.render.plan import PlanItem, make_plan
 from jaxsss.render.radiance import F_dt_external
+from jaxsss.render.rays import OBJECT_TRANSLUCENT, SceneGeometry
+from jaxsss.render.renderer import assemble_prepared, irradiance_pass
+from jaxsss.render.shading import shading_points
 
 __all__ = [
     "DISK_RADIUS_IN_LD",
     "GRADIENTS",
     "NORMAL_COS",
     "CachePlacement",
+    "CACHE_MIN_POINTS",
     "CachedPrepared",
+    "DEFAULT_ERROR_BOUND",
+    "caching_pays",
+    "debug_images",
+    "explain_cached",
     "place_caches",
+    "prepare_cached",
     "split_disk_constant",
 ]
 
+CACHE_MIN_POINTS = 20_000
+"""The registered method caches only images with at least this many shaded points (:func:`caching_pays`)."""
+DEFAULT_ERROR_BOUND = 0.3
+"""The default relative error bound ``a`` (``jaxsss render --method cached --cache-error``)."""
 GRADIENTS = ("far", "analytic", "autodiff", "none")
 """The ``grad S`` used in Eq. 10: the far-field part of the analytic gradient (default), the full analytic gradient
 (Eq. 9), the full gradient by autodiff, or none (plain weighted mean). See the module docstring, "Which gradient"."""
@@ -242,6 +260,9 @@ class CachedPrepared(eqx.Module):
         den = jax.ops.segment_sum(self.pair_weight, self.pair_point, num_segments=n, indices_are_sorted=True)
         return num / den[:, None]
 
+    shape = property(lambda self: self.points.shape, doc="``(H, W)`` of the image.")
+    spp = property(lambda self: self.points.spp, doc="Camera rays per pixel.")
+
     def image(self, medium: Medium):
         """The linear radiance image ``(H, W, C)``."""
         return _cached_image(self, medium)
@@ -291,9 +312,6 @@ def _transmitted_irradiance(samples, medium: Medium) -> np.ndarray:
 
 def _cache_geometry(scene, error_bound: float, *, eps=None, resolution=None, one_pass=False, plan=None,
                     pixel_mask=None, cutoff=True, share_channels=True) -> _CacheGeometry:
-    from jaxsss.render import renderer as rr
-    from jaxsss.render.plan import make_plan
-
     if not error_bound > 0:
         raise ValueError(f"prepare_cached(error_bound={error_bound}) is outside the allowed range (0, inf)")
     timings: dict[str, float] = {}
@@ -303,10 +321,10 @@ def _cache_geometry(scene, error_bound: float, *, eps=None, resolution=None, one
         plan = plan._replace(method="hierarchical")
     timings["plan"] = time.perf_counter() - t0
     t0 = time.perf_counter()
-    geometry, samples, tree, timings["octree"] = rr._pass1(scene, plan)
+    geometry, samples, tree, timings["octree"] = irradiance_pass(scene, plan)
     timings["pass1_irradiance"] = time.perf_counter() - t0 - timings["octree"]
     t0 = time.perf_counter()
-    shading = rr._shading_points(scene, geometry, plan, resolution, pixel_mask, samples.light.irradiance.shape[-1])
+    shading = shading_points(scene, geometry, plan, resolution, pixel_mask, samples.light.irradiance.shape[-1])
     timings["camera_rays"] = time.perf_counter() - t0
     # Pass 2: cache placement.
     t0 = time.perf_counter()
@@ -320,8 +338,6 @@ def _cache_geometry(scene, error_bound: float, *, eps=None, resolution=None, one
 def cache_plan_item(placement: CachePlacement, normal: np.ndarray, to_eye: np.ndarray, error_bound: float):
     """The scene plan's line for the cached method: how many caches, and where they go (silhouettes, varying light,
     near-uniform light), with the reason."""
-    from jaxsss.render.plan import PlanItem
-
     k, q = len(placement.cache_point), len(normal)
     cos_v = np.einsum("ij,ij->i", normal[placement.cache_point], to_eye[placement.cache_point])
     silhouette = cos_v < SILHOUETTE_COS
@@ -363,8 +379,6 @@ def prepare_cached(scene, error_bound: float, *, eps: float | None = None, resol
     Returns:
         ``(cached, plan, info, placement)``; ``plan`` ends with the "irradiance caches" item.
     """
-    from jaxsss.render import renderer as rr
-
     if gradient not in GRADIENTS:
         raise ValueError(f"prepare_cached(gradient={gradient!r}) is not one of {', '.join(map(repr, GRADIENTS))}")
     geo = _cache_geometry(scene, error_bound, eps=eps, resolution=resolution, one_pass=one_pass, plan=plan,
@@ -372,10 +386,10 @@ def prepare_cached(scene, error_bound: float, *, eps: float | None = None, resol
     samples, tree, shading, placement, timings = geo.samples, geo.tree, geo.shading, geo.placement, geo.timings
     t0 = time.perf_counter()
     cache_shading = shading.subset(placement.cache_point)
-    pairs = rr._pair_lists(tree, samples, cache_shading.pos, geo.plan, progress=progress, block_pairs=rr.BLOCK_PAIRS)
+    pairs = pair_lists(tree, samples, cache_shading.pos, geo.plan, progress=progress)
     timings["interactions"] = time.perf_counter() - t0
-    cache = rr._assemble(scene, geo.plan, samples, tree, cache_shading, pairs)
-    points = rr._assemble(scene, geo.plan, samples, tree, shading, None)
+    cache = assemble_prepared(scene, geo.plan, samples, tree, cache_shading, pairs)
+    points = assemble_prepared(scene, geo.plan, samples, tree, shading, None)
     offset = shading.pos[placement.pair_point] - shading.pos[placement.cache_point[placement.pair_cache]]
     cached = CachedPrepared(cache, points, jnp.asarray(placement.pair_point), jnp.asarray(placement.pair_cache),
                             jnp.asarray(placement.pair_weight), jnp.asarray(offset), gradient)
@@ -401,52 +415,88 @@ def prepare_cached(scene, error_bound: float, *, eps: float | None = None, resol
         "interpolation_pairs_per_point_mean": len(placement.pair_point) / max(n_points, 1),
         "interpolation_error_estimate_mean": float(np.mean(per_point_err)) if n_points else 0.0,
         "interpolation_error_estimate_max": float(np.max(per_point_err)) if n_points else 0.0,
-        **rr._pair_info(pairs, len(cache_shading.pos)),
+        **pair_info(pairs, len(cache_shading.pos)),
     }
     return cached, plan, info, placement
 
 
-def render_cached(scene, error_bound: float, *, eps: float | None = None, resolution=None, one_pass: bool = False,
-                  gradient: str = "far", progress: bool = False):
-    """Render with the cached method: :func:`prepare_cached`, then ``S`` and ``grad S`` at the caches and the
-    interpolated image (compilation timed apart). Returns a :class:`jaxsss.render.RenderResult`."""
-    from jaxsss.render.renderer import RenderResult, render_report
-
-    t_all = time.perf_counter()
-    cached, plan, info, placement = prepare_cached(scene, error_bound, eps=eps, resolution=resolution,
-                                                   one_pass=one_pass, gradient=gradient, progress=progress)
-    medium = scene.material.medium
-    timings = info["timings"]
-    t0 = time.perf_counter()
-    values = _cache_values.lower(cached, medium).compile()
-    image_fn = _cached_image.lower(cached, medium).compile()
-    timings["pass2_compile"] = time.perf_counter() - t0
-    t0 = time.perf_counter()
-    s, g = jax.block_until_ready(values(cached, medium))
-    timings["cache_values"] = time.perf_counter() - t0
-    t0 = time.perf_counter()
-    image = np.asarray(image_fn(cached, medium))
-    timings["interpolation_and_image"] = time.perf_counter() - t0
-    report = render_report(time.perf_counter() - t_all, timings, "cached", plan, cached.points, info, image)
-    debug = {
-        "cache_point": placement.cache_point,
-        "spread": placement.spread,
-        "gradient_magnitude": np.linalg.norm(np.asarray(g).mean(axis=-1), axis=1),
-        "exitance": np.asarray(s),
-    }
-    report["_debug"] = debug
-    return RenderResult(image, report, cached, plan)
-
-
-def debug_images(cached: CachedPrepared, debug: dict) -> dict[str, np.ndarray]:
-    """The paper's Figures 8-9 as ``(H, W)`` arrays: cache positions (1 at cache pixels), the gradient magnitude
-    ``|grad S|`` and the irradiance spread ``V / E`` of each cache, painted at the cache's pixel."""
+def debug_images(prepared, medium: Medium | None = None) -> dict[str, np.ndarray]:
+    """The paper's Figures 8-9 as ``(H, W)`` arrays from a cached :class:`~jaxsss.render.methods.Preparation`:
+    cache positions (1 at cache pixels), the gradient magnitude ``|grad S|`` (channel mean, at ``medium``, default
+    the placement's) and the irradiance spread ``V / E`` of each cache, painted at the cache's pixel."""
+    cached, placement = prepared.state, prepared.extras["placement"]
+    _, g = _cache_values(cached, prepared.extras["medium"] if medium is None else medium)
     h, w = cached.points.shape
-    pix = np.asarray(cached.points.query_pixel)[debug["cache_point"]]
+    pix = np.asarray(cached.points.query_pixel)[placement.cache_point]
     out = {}
-    for name, values in (("caches", np.ones(len(pix))), ("gradient", debug["gradient_magnitude"]),
-                         ("variance", debug["spread"])):
+    for name, values in (("caches", np.ones(len(pix))),
+                         ("gradient", np.linalg.norm(np.asarray(g).mean(axis=-1), axis=1)),
+                         ("variance", placement.spread)):
         img = np.zeros(h * w)
         img[pix] = values
         out[name] = img.reshape(h, w)
     return out
+
+
+def _shaded_point_count(scene, resolution, pixel_mask) -> int:
+    """How many camera rays hit the translucent object (the plan's measure of what caching can save)."""
+    rays = camera_rays(scene.camera, resolution, seed=scene.render.seed)
+    keep = slice(None) if pixel_mask is None else np.asarray(pixel_mask).reshape(-1)[rays.pixel]
+    hits = SceneGeometry(scene.mesh, [o.mesh for o in scene.occluders]).first_hit(rays.origins[keep],
+                                                                                    rays.directions[keep])
+    return int(np.count_nonzero(hits.obj == OBJECT_TRANSLUCENT))
+
+
+def caching_pays(n_points: int) -> tuple[bool, str]:
+    """The plan's rule for the cached method end to end: ``(pays, reason)``.
+
+    Caching saves the interaction lists and pass 2 of every point that is not a cache, and costs the cache placement
+    and a larger image function to compile (the gradient and the interpolation: about 5 s more). Measured end to end
+    on the marble teapot (``jaxsss render --method cached`` against ``--method hierarchical``, a = 0.3, no
+    persistent compilation cache; ``docs/benchmarks.md``): 9698 shaded points (256 x 256) 17.1 s against 12.6 s, a
+    loss; 38786 points (512 x 512) 37.2 s against 172 s, 4.6x faster. It pays above :data:`CACHE_MIN_POINTS`."""
+    if n_points >= CACHE_MIN_POINTS:
+        return True, f"{n_points} shaded points >= {CACHE_MIN_POINTS}: caching pays end to end"
+    return False, (f"left out: {n_points} shaded points < {CACHE_MIN_POINTS}, where the cache's placement and extra "
+                   "compilation cost more than the interactions it saves (measured end to end, docs/benchmarks.md); "
+                   "the hierarchical sum renders the image (--cache-always keeps the caches)")
+
+
+def _not_cached(preparation, reason: str):
+    """A hierarchical preparation presented as the cached method's, with the plan saying why."""
+    plan = preparation.plan._replace(method="cached",
+                                     items=preparation.plan.items + (PlanItem("irradiance caches", False, reason),))
+    diagnostics = {**preparation.diagnostics, "n_caches": 0, "cache_ratio": 0.0}
+    return dataclasses.replace(preparation, method="cached", plan=plan, diagnostics=diagnostics)
+
+
+def _prepare_registered(scene, *, resolution=None, pixel_mask=None, fit=False, progress=False, eps=None,
+                        error_bound=DEFAULT_ERROR_BOUND, one_pass=False, gradient="far", always=False):
+    # The rule is for one render; a fit evaluates the image many times and keeps the caches.
+    if not (always or fit):
+        pays, why = caching_pays(_shaded_point_count(scene, resolution, pixel_mask))
+        if not pays:
+            hierarchical = resolve_method("hierarchical")
+            return _not_cached(hierarchical.prepare(scene, resolution=resolution, pixel_mask=pixel_mask, fit=fit,
+                                                    progress=progress, eps=eps), why)
+    cached, plan, info, placement = prepare_cached(scene, error_bound, eps=eps, resolution=resolution,
+                                                   one_pass=one_pass, gradient=gradient, progress=progress,
+                                                   pixel_mask=pixel_mask, cutoff=not fit, share_channels=not fit)
+    timings = info.pop("timings")
+    return Preparation("cached", cached, plan, {"eps": plan.eps, **info}, timings,
+                       {"placement": placement, "medium": scene.material.medium})
+
+
+def _explain_registered(scene, *, resolution=None, eps=None, error_bound=DEFAULT_ERROR_BOUND, one_pass=False,
+                        gradient="far", always=False):
+    if not always:
+        pays, why = caching_pays(_shaded_point_count(scene, resolution, None))
+        if not pays:
+            plan = make_plan(scene, method="hierarchical", eps=eps)
+            return plan._replace(method="cached", items=plan.items + (PlanItem("irradiance caches", False, why),))
+    return explain_cached(scene, error_bound, eps=eps, resolution=resolution, one_pass=one_pass)[0]
+
+
+register_method("cached", _prepare_registered,
+                "irradiance caching with gradients (Keng et al. 2006) on top of the hierarchical sum",
+                options=("eps", "error_bound", "one_pass", "gradient", "always"), explain=_explain_registered)

@@ -20,6 +20,7 @@ from typing import NamedTuple
 
 import numpy as np
 
+from jaxsss._validate import check_integer
 from jaxsss.render.octree import MORTON_BITS, Octree
 
 __all__ = ["Interactions", "build_interactions", "direct_interactions"]
@@ -242,12 +243,10 @@ def build_interactions(
     x = _check_points(query_points)
     eps = _check_positive(eps, "eps", allow_none=False)
     r_cut = _check_positive(r_cut, "r_cut", allow_none=True)
-    if not (isinstance(chunk_size, (int, np.integer)) and chunk_size >= 1):
-        raise ValueError(f"build_interactions(chunk_size={chunk_size!r}) must be an integer in [1, inf)")
+    check_integer(chunk_size, "chunk_size", 1, owner="build_interactions")
     if n_threads is None:
         n_threads = _default_threads()
-    if not (isinstance(n_threads, (int, np.integer)) and n_threads >= 1):
-        raise ValueError(f"build_interactions(n_threads={n_threads!r}) must be an integer in [1, inf)")
+    check_integer(n_threads, "n_threads", 1, owner="build_interactions")
     if octree.n_entities > _INT32_MAX:
         raise ValueError(f"build_interactions(octree=...) has {octree.n_entities} entities; int32 ids need <= {_INT32_MAX}")
     t = _tables(octree)
@@ -306,8 +305,7 @@ def direct_interactions(octree: Octree, n_queries: int, query_subset=None) -> In
     Raises:
         ValueError: beyond ``5e7`` pairs, with the pair count.
     """
-    if not (isinstance(n_queries, (int, np.integer)) and 0 <= n_queries <= _INT32_MAX):
-        raise ValueError(f"direct_interactions(n_queries={n_queries!r}) must be an integer in [0, {_INT32_MAX}]")
+    check_integer(n_queries, "n_queries", 0, _INT32_MAX, owner="direct_interactions")
     if query_subset is None:
         qs = np.arange(n_queries, dtype=np.int64)
     else:

@@ -30,6 +30,8 @@ from typing import NamedTuple
 
 import numpy as np
 
+from jaxsss._validate import check_integer
+
 __all__ = ["Octree", "build_octree", "cut_sums_from_samples", "morton_codes", "segment_range_sum"]
 
 MORTON_BITS = 21  # bits per axis; 3 * 21 = 63 bits fit a non-negative int64
@@ -237,10 +239,8 @@ def _check_inputs(positions, areas, weights, max_leaf, max_depth):
     if bad.any():
         i = int(np.flatnonzero(bad)[0])
         raise ValueError(f"build_octree(weights={weights[i]:g}) (element {i}) is outside the allowed range [0, inf)")
-    if not (isinstance(max_leaf, (int, np.integer)) and 1 <= max_leaf <= 8):
-        raise ValueError(f"build_octree(max_leaf={max_leaf!r}) must be an integer in [1, 8] (the 8 child slots)")
-    if not (isinstance(max_depth, (int, np.integer)) and 0 <= max_depth <= MORTON_BITS):
-        raise ValueError(f"build_octree(max_depth={max_depth!r}) must be an integer in [0, {MORTON_BITS}]")
+    check_integer(max_leaf, "max_leaf", 1, 8, owner="build_octree")  # the 8 child slots
+    check_integer(max_depth, "max_depth", 0, MORTON_BITS, owner="build_octree")
     return positions, areas, weights
 
 

@@ -34,9 +34,11 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from jaxsss.fresnel import _fresnel_unpolarised, resolve_fresnel_method
+from jaxsss.fresnel import fresnel_unpolarised, refract, resolve_fresnel_method, snell_cosine
 from jaxsss.medium import Medium
-from jaxsss.profiles.dipole import _dipole_profile
+from jaxsss.phase import hg_phase
+from jaxsss.profiles.dipole import dipole_depths
+from jaxsss.profiles.point_sources import point_source_exitance
 from jaxsss.reflectance import medium_total_diffuse_reflectance
 
 __all__ = [
@@ -62,9 +64,18 @@ __all__ = [
 ]
 
 
+def _dipole(r, medium: Medium):
+    """The dipole profile ``R_d(r)`` (:func:`jaxsss.profiles.dipole_profile`) without its input check, for the
+    sums' inner loops (``r`` is a distance, never negative)."""
+    z_r, z_v = dipole_depths(medium)
+    # Hierarchical paper Eq. 8-9: the real source at z_r and its image at z_v.
+    return medium.alpha_prime * (point_source_exitance(z_r, r, medium.sigma_tr)
+                                 + point_source_exitance(z_v, r, medium.sigma_tr))
+
+
 def _transmittance(eta, cos_outside):
     """Fresnel transmittance ``1 - F(eta, cos)`` for light crossing the boundary at outside angle ``cos``."""
-    return 1.0 - _fresnel_unpolarised(jnp.clip(cos_outside, 0.0, 1.0), eta)
+    return 1.0 - fresnel_unpolarised(jnp.clip(cos_outside, 0.0, 1.0), eta)
 
 
 def F_dt_external(eta, fresnel: str = "poly"):
@@ -194,7 +205,7 @@ def exitance_near(medium: Medium, query_pos, sample_pos, sample_area, sample_flu
 
     area = seg(w * sample_area[near_sample])
     spread = seg(w[:, None] * flux) / jnp.where(area > 0, area, 1.0)[:, None]
-    point = seg(((1.0 - w)[:, None] * _dipole_profile(r[:, None], _kernel_medium(medium, shared_channel))) * flux)
+    point = seg(((1.0 - w)[:, None] * _dipole(r[:, None], _kernel_medium(medium, shared_channel))) * flux)
     return spread * weighted_disc_integral(rho0, medium) + point
 
 
@@ -223,7 +234,7 @@ def exitance_pairs(medium: Medium, query_pos, ent_pos, ent_flux, pair_query, pai
     def contrib(q, e):
         r = _safe_distance(query_pos[q], ent_pos[e])
         # Hierarchical paper Eq. 13: each entity contributes Phi_v R_d(|x - P_v|).
-        return _dipole_profile(r[:, None], kernel_medium) * ent_flux[e]
+        return _dipole(r[:, None], kernel_medium) * ent_flux[e]
 
     return scan_pairs(contrib, n_q, ent_flux.shape[-1:], ent_flux.dtype, pair_query, pair_entity)
 
@@ -326,7 +337,7 @@ def exitance_near_gradient(medium: Medium, query_pos, sample_pos, sample_area, s
     e_mean = seg(w[:, None] * flux) / safe_wa[:, None]  # (Q, C)
     grad_e = (seg(dw[:, :, None] * flux[:, None, :]) - e_mean[:, None, :] * seg(dw * area[:, None])[:, :, None]) \
         / safe_wa[:, None, None]
-    prof = _dipole_profile(r[:, None], medium)  # (K, C)
+    prof = _dipole(r[:, None], medium)  # (K, C)
     g = dipole_gradient_factor(r[:, None], medium)  # (K, C)
     point = seg(flux[:, None, :] * (-dw[:, :, None] * prof[:, None, :] + (1.0 - w)[:, None, None]
                                     * g[:, None, :] * delta[:, :, None]))
@@ -350,7 +361,7 @@ def exitance_direct(medium: Medium, query_pos, sample_pos, sample_flux, sample_a
     def one(q):
         r = _safe_distance(q[:, None, :], sample_pos[None, :, :])
         w = near_weight(r, rho0)
-        point = jnp.sum(((1.0 - w)[..., None] * _dipole_profile(r[..., None], kernel_medium)) * sample_flux[None],
+        point = jnp.sum(((1.0 - w)[..., None] * _dipole(r[..., None], kernel_medium)) * sample_flux[None],
                         axis=1)
         area = jnp.sum(w * sample_area[None], axis=1)
         spread = jnp.sum(w[..., None] * sample_flux[None], axis=1) / jnp.where(area > 0, area, 1.0)[:, None]
@@ -371,22 +382,13 @@ def exit_radiance(medium: Medium, exitance, cos_o):
     return scale[:, None] * exitance
 
 
-def hg_phase(cos_theta, g):
-    """Henyey-Greenstein phase function, 1/sr: ``(1 - g^2) / (4 pi (1 + g^2 - 2 g cos)^{3/2})``."""
-    return (1.0 - g * g) / (4.0 * jnp.pi * (1.0 + g * g - 2.0 * g * cos_theta) ** 1.5)
-
-
 def _refract_in(to_source, normal, eta):
     """``(t, cos_t, ok)``: direction of travel inside the medium of light arriving from ``to_source`` (unit vector
     from the surface towards where the light comes from), the cosine of the refracted angle, and False under total
     internal reflection (possible for ``eta < 1``)."""
     cos_i = jnp.clip(jnp.sum(to_source * normal, axis=-1), 0.0, 1.0)
-    sin2_t = (1.0 - cos_i**2) / eta**2
-    ok = sin2_t < 1.0
-    # Double where: no infinite derivative of sqrt at 0 leaks into gradients under total internal reflection.
-    cos_t = jnp.where(ok, jnp.sqrt(jnp.where(ok, 1.0 - sin2_t, 1.0)), 0.0)
-    t = -to_source / eta + (cos_i / eta - cos_t)[..., None] * normal
-    return t, cos_t, ok
+    cos_t, ok = snell_cosine(cos_i, eta)
+    return refract(-to_source, normal, cos_i, cos_t, eta), cos_t, ok
 
 
 def _phase_params(medium: Medium):
@@ -442,7 +444,7 @@ def specular_ggx(medium: Medium, normal, to_eye, to_light, light_irradiance, rou
     def g1(c):
         return 2.0 * c / jnp.maximum(c + jnp.sqrt(a2 + (1.0 - a2) * c * c), 1e-12)
 
-    F = _fresnel_unpolarised(jnp.clip(jnp.sum(h * to_light, axis=-1), 0.0, 1.0), medium.eta)
+    F = fresnel_unpolarised(jnp.clip(jnp.sum(h * to_light, axis=-1), 0.0, 1.0), medium.eta)
     f = jnp.where((cos_l > 0) & (cos_v > 0), D * g1(cos_l) * g1(cos_v) * F / jnp.maximum(4.0 * cos_l * cos_v, 1e-12),
                   0.0)
     return jnp.sum(f[..., None] * light_irradiance, axis=1)

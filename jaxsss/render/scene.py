@@ -76,7 +76,11 @@ Schema (units: mm, 1/mm, degrees; "3 values" means ``[x, y, z]`` or ``[r, g, b]`
     environment = "sky.hdr"   # optional top-level key: an HDR environment map (checked to exist; not used yet)
 
     [layers]                  # optional: subsurface texture layers for `--method layered` (schema in
-                              # jaxsss.layered.config; stored as Scene.layers, a LayerSpec)
+                              # jaxsss.layered.config, which registers the section; Scene.layers, a LayerSpec)
+
+Sections beyond these are registered by the packages that use them (:func:`register_section`; the layered package
+registers ``[layers]``), so this module imports nothing above the scene floor. Their parsers validate with the same
+:class:`SceneKeys` as the sections here; their values are in ``Scene.sections`` (``Scene.layers`` for ``[layers]``).
 
 The dataclasses are frozen with ``eq=False`` (they hold arrays and meshes, so comparison is by identity); their
 arrays are made read-only.
@@ -95,7 +99,7 @@ from typing import Any
 import numpy as np
 import trimesh
 
-from jaxsss._validate import _bound_text
+from jaxsss._validate import bound_text
 from jaxsss.data.materials import material as _measured_material
 from jaxsss.medium import Medium
 from jaxsss.render.meshes import (
@@ -117,14 +121,17 @@ __all__ = [
     "RenderSettings",
     "Scene",
     "SceneError",
+    "SceneKeys",
+    "SECTIONS",
+    "SECTION_MODULES",
     "load_scene",
     "parse_scene",
+    "register_section",
     "scene_with",
 ]
 
 DEFAULT_ETA = 1.3
 LIGHT_KINDS = ("point", "directional", "spot")
-RENDER_METHODS = ("hierarchical", "direct")
 SWITCH_VALUES = ("auto", "on", "off")
 
 
@@ -259,11 +266,20 @@ class Scene:
     render: RenderSettings = field(default_factory=RenderSettings)
     output: Output = field(default_factory=Output)
     environment: str | None = None
-    layers: Any = None  # jaxsss.layered.LayerSpec from a [layers] table (the layered method), else None
+    sections: dict = field(default_factory=dict)  # registered sections' values (register_section), by name
+
+    @property
+    def layers(self) -> Any:
+        """The ``[layers]`` table as a :class:`jaxsss.layered.LayerSpec` (the layered method), else None."""
+        return self.sections.get("layers")
 
 
 # --- value checks -----------------------------------------------------------------------------------------------
-class _Ctx:
+class SceneKeys:
+    """The one TOML validator of scene files: each check returns the value or raises :class:`SceneError` naming the
+    file (``path``), the dotted key and, for values, the value and the allowed range. ``base_dir`` is where relative
+    file paths resolve. Registered sections (:func:`register_section`) get one to validate their table with."""
+
     def __init__(self, path: str, base_dir):
         self.path = path
         self.base_dir = Path(base_dir) if base_dir is not None else Path.cwd()
@@ -299,7 +315,7 @@ class _Ctx:
         if hi is not None:
             bad = bad or (v >= hi if hi_open else v > hi)
         if bad:
-            raise self.error(key, f"{v:g}{where} is outside the allowed range {_bound_text(lo, hi, lo_open, hi_open)}")
+            raise self.error(key, f"{v:g}{where} is outside the allowed range {bound_text(lo, hi, lo_open, hi_open)}")
         return v
 
     def integer(self, value, key: str, lo: int, hi: int | None = None) -> int:
@@ -329,6 +345,20 @@ class _Ctx:
             raise self.error(key, f"must be a table [{key}], not {type(value).__name__}")
         return value
 
+    def values(self, value, key: str, n: int | None = None, **bounds) -> np.ndarray:
+        """One number or a non-empty list of numbers (of length ``n`` when given) -> ``(k,)`` float64."""
+        if not isinstance(value, (list, tuple)):
+            return np.array([self.number(value, key, **bounds)])
+        if len(value) == 0 or (n is not None and len(value) != n):
+            raise self.error(key, f"{value!r} is not one number or {n if n else 'a list of'} values")
+        return np.array([self.number(x, key, where=f" (element {i})", **bounds) for i, x in enumerate(value)])
+
+    def only(self, table, key: str, allowed):
+        """``table`` must be a table whose keys are all in ``allowed``."""
+        if not isinstance(table, dict):
+            raise self.error(key, f"must be a table [{key}], not {type(table).__name__}")
+        self.only_keys(table, key, allowed)
+
     def only_keys(self, table: dict, key: str, allowed, what: str | None = None):
         for k in table:
             if k not in allowed:
@@ -347,7 +377,7 @@ def _fmt(v) -> str:
     return f"{v:g}" if isinstance(v, float) else str(v)
 
 
-def _builtin_param(ctx: _Ctx, value, key: str, default):
+def _builtin_param(ctx: SceneKeys, value, key: str, default):
     """Type-check a builtin parameter by its default's type; the range is checked by ``builtin_mesh``."""
     if isinstance(default, list):
         return list(ctx.vector(value, key, lo=0.0, lo_open=True))
@@ -356,7 +386,7 @@ def _builtin_param(ctx: _Ctx, value, key: str, default):
     return ctx.number(value, key)
 
 
-def _parse_mesh(ctx: _Ctx, table: dict, key: str, extra_keys=()) -> tuple[trimesh.Trimesh, str]:
+def _parse_mesh(ctx: SceneKeys, table: dict, key: str, extra_keys=()) -> tuple[trimesh.Trimesh, str]:
     ctx.only_keys(table, key, _MESH_KEYS | set(extra_keys))
     has_builtin, has_file = "builtin" in table, "file" in table
     if has_builtin == has_file:
@@ -414,7 +444,7 @@ _MATERIAL_KEYS = (
 _MATERIAL_GROUPS = {"name": ("name",), "sigma_a + sigma_s_prime": ("sigma_a", "sigma_s_prime"), "rd + ld": ("rd", "ld")}
 
 
-def _load_texture(ctx: _Ctx, path: Path, key: str) -> np.ndarray:
+def _load_texture(ctx: SceneKeys, path: Path, key: str) -> np.ndarray:
     """An image file -> ``(H, W, 3)`` linear float64 (sRGB decoded with colour.cctf_decoding)."""
     import colour
     from PIL import Image
@@ -434,7 +464,7 @@ def _load_texture(ctx: _Ctx, path: Path, key: str) -> np.ndarray:
     return _frozen(colour.cctf_decoding(np.clip(encoded, 0.0, 1.0), function="sRGB"))
 
 
-def _parse_material(ctx: _Ctx, table: dict) -> Material:
+def _parse_material(ctx: SceneKeys, table: dict) -> Material:
     key = "material"
     ctx.only_keys(table, key, _MATERIAL_KEYS)
     given = [g for g, keys in _MATERIAL_GROUPS.items() if any(k in table for k in keys)]
@@ -498,7 +528,7 @@ _LIGHT_KEYS = {
 _ALL_LIGHT_KEYS = {k for keys in _LIGHT_KEYS.values() for k in keys}
 
 
-def _parse_light(ctx: _Ctx, table, key: str) -> Light:
+def _parse_light(ctx: SceneKeys, table, key: str) -> Light:
     if not isinstance(table, dict):
         raise ctx.error(key, "must be a table ([[light]])")
     ctx.only_keys(table, key, _ALL_LIGHT_KEYS)
@@ -532,7 +562,7 @@ def _parse_light(ctx: _Ctx, table, key: str) -> Light:
 _CAMERA_KEYS = ("position", "look_at", "up", "fov_deg", "resolution", "spp")
 
 
-def _parse_camera(ctx: _Ctx, table: dict) -> Camera:
+def _parse_camera(ctx: SceneKeys, table: dict) -> Camera:
     key = "camera"
     ctx.only_keys(table, key, _CAMERA_KEYS)
     for k in ("position", "look_at"):
@@ -558,7 +588,7 @@ def _parse_camera(ctx: _Ctx, table: dict) -> Camera:
     return Camera(position, look_at, _frozen(up / np.linalg.norm(up)), fov, resolution, spp)
 
 
-def _parse_occluder(ctx: _Ctx, table, key: str) -> Occluder:
+def _parse_occluder(ctx: SceneKeys, table, key: str) -> Occluder:
     if not isinstance(table, dict):
         raise ctx.error(key, "must be a table ([[occluder]])")
     mesh, description = _parse_mesh(ctx, table, key, extra_keys=("albedo",))
@@ -566,13 +596,13 @@ def _parse_occluder(ctx: _Ctx, table, key: str) -> Occluder:
     return Occluder(mesh, albedo, description)
 
 
-def _parse_blocker(ctx: _Ctx, table, key: str) -> Blocker:
+def _parse_blocker(ctx: SceneKeys, table, key: str) -> Blocker:
     if not isinstance(table, dict):
         raise ctx.error(key, "must be a table ([[blocker]])")
     return Blocker(*_parse_mesh(ctx, table, key))
 
 
-def _parse_render(ctx: _Ctx, table: dict) -> RenderSettings:
+def _parse_render(ctx: SceneKeys, table: dict) -> RenderSettings:
     key = "render"
     names = [f.name for f in dataclasses.fields(RenderSettings)]
     ctx.only_keys(table, key, names)
@@ -580,7 +610,9 @@ def _parse_render(ctx: _Ctx, table: dict) -> RenderSettings:
     for k, v in table.items():
         kk = f"{key}.{k}"
         if k == "method":
-            values[k] = ctx.choice(v, kk, RENDER_METHODS)
+            from jaxsss.render.methods import method_names  # the registry (the floor's own module)
+
+            values[k] = ctx.choice(v, kk, method_names())
         elif k in ("eps", "density"):
             values[k] = ctx.number(v, kk, 0.0, lo_open=True)
         elif k == "tolerance":
@@ -594,7 +626,7 @@ def _parse_render(ctx: _Ctx, table: dict) -> RenderSettings:
     return RenderSettings(**values)
 
 
-def _parse_output(ctx: _Ctx, table: dict) -> Output:
+def _parse_output(ctx: SceneKeys, table: dict) -> Output:
     key = "output"
     ctx.only_keys(table, key, ("exposure", "background"))
     exposure = ctx.number(table.get("exposure", 1.0), f"{key}.exposure", 0.0, lo_open=True)
@@ -602,7 +634,7 @@ def _parse_output(ctx: _Ctx, table: dict) -> Output:
     return Output(exposure, background)
 
 
-def _array_of_tables(ctx: _Ctx, data: dict, name: str) -> list:
+def _array_of_tables(ctx: SceneKeys, data: dict, name: str) -> list:
     value = data.get(name, [])
     if isinstance(value, dict):  # a single [name] table
         return [value]
@@ -611,7 +643,30 @@ def _array_of_tables(ctx: _Ctx, data: dict, name: str) -> list:
     return value
 
 
-_TOP_KEYS = ("mesh", "material", "light", "camera", "occluder", "blocker", "render", "output", "environment", "layers")
+_TOP_KEYS = ("mesh", "material", "light", "camera", "occluder", "blocker", "render", "output", "environment")
+
+SECTIONS: dict = {}
+"""Registered top-level sections: name -> ``parse(table, keys: SceneKeys)`` (see :func:`register_section`)."""
+SECTION_MODULES = ("jaxsss.layered",)
+"""Packages that register sections, imported by name when a scene is parsed (they build on this module, so it
+cannot import them)."""
+
+
+def register_section(name: str, parse) -> None:
+    """Accept a top-level ``[name]`` table in scene files: ``parse(table, keys)`` validates it with the
+    :class:`SceneKeys` ``keys`` (raising :class:`SceneError` through it) and returns the value stored in
+    ``Scene.sections[name]``."""
+    if name in _TOP_KEYS:
+        raise ValueError(f"register_section(name={name!r}): a core section of the scene file")
+    SECTIONS[name] = parse
+
+
+def _registered_sections() -> dict:
+    import importlib
+
+    for module in SECTION_MODULES:
+        importlib.import_module(module)
+    return SECTIONS
 
 
 def parse_scene(data: dict, *, path: str = "<scene>", base_dir=None) -> Scene:
@@ -625,10 +680,11 @@ def parse_scene(data: dict, *, path: str = "<scene>", base_dir=None) -> Scene:
     Raises:
         SceneError: any invalid or missing entry, naming ``path`` and the dotted key.
     """
-    ctx = _Ctx(str(path), base_dir)
+    ctx = SceneKeys(str(path), base_dir)
     if not isinstance(data, dict):
         raise ctx.error(None, "a scene must be a TOML table")
-    ctx.only_keys(data, "", _TOP_KEYS)
+    sections = _registered_sections()
+    ctx.only_keys(data, "", (*_TOP_KEYS, *sections))
     for section in ("mesh", "material", "camera"):
         if section not in data:
             raise ctx.error(section, f"missing section [{section}]")
@@ -648,11 +704,7 @@ def parse_scene(data: dict, *, path: str = "<scene>", base_dir=None) -> Scene:
     render = _parse_render(ctx, ctx.table(data, "render", "render")) if "render" in data else RenderSettings()
     output = _parse_output(ctx, ctx.table(data, "output", "output")) if "output" in data else Output()
     environment = str(ctx.file(data["environment"], "environment")) if "environment" in data else None
-    layers = None
-    if "layers" in data:  # subsurface texture layers (jaxsss.layered, which builds on this module)
-        from jaxsss.layered.config import parse_layers
-
-        layers = parse_layers(data["layers"], path=str(path), base_dir=base_dir)
+    extra = {name: parse(data[name], ctx) for name, parse in sections.items() if name in data}
     return Scene(
         path=None if path == "<scene>" else str(path),
         mesh=mesh,
@@ -665,7 +717,7 @@ def parse_scene(data: dict, *, path: str = "<scene>", base_dir=None) -> Scene:
         render=render,
         output=output,
         environment=environment,
-        layers=layers,
+        sections=extra,
     )
 
 

@@ -27,6 +27,8 @@ import functools
 from importlib import resources
 
 import numpy as np
+
+from jaxsss._validate import check_integer
 import trimesh
 
 __all__ = ["TEAPOT_HEIGHT", "TeapotPatches", "load_teapot_patches", "teapot_mesh"]
@@ -121,9 +123,7 @@ def teapot_mesh(size: float = 60.0, resolution: int = 12) -> trimesh.Trimesh:
     """
     if not (np.isfinite(size) and size > 0):
         raise ValueError(f"teapot_mesh(size={size!r}): outside the allowed range (0, inf)")
-    if isinstance(resolution, bool) or int(resolution) != resolution or resolution < 1:
-        raise ValueError(f"teapot_mesh(resolution={resolution!r}): must be an integer in [1, inf)")
-    resolution = int(resolution)
+    resolution = check_integer(resolution, "resolution", 1, owner="teapot_mesh")
     data = load_teapot_patches()
     C = data.control_points  # (32, 4, 4, 3)
     t = np.linspace(0.0, 1.0, resolution + 1)

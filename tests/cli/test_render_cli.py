@@ -128,7 +128,7 @@ def test_cached_method_with_debug_images(capsys, tmp_path, small_scene):
 
 def test_cached_explain_reports_the_cache_ratio(capsys, small_scene):
     code, stdout, err = run_cli(capsys, "render", small_scene, "--method", "cached", "--cache-error", 0.5,
-                                "--explain", "--resolution", 12, 12)
+                                "--cache-always", "--explain", "--resolution", 12, 12)
     assert code == 0, err
     line = next(x for x in stdout.splitlines() if "irradiance caches" in x)
     assert "cache ratio" in line and "silhouettes" in line and "where the light varies" in line
@@ -137,6 +137,7 @@ def test_cached_explain_reports_the_cache_ratio(capsys, small_scene):
 def _layered_scene(tmp_path, diffusion: str) -> Path:
     text = (EXAMPLES / "layered_veins.toml").read_text()
     text = text.replace("[layers]\n", f'[layers]\ndiffusion = "{diffusion}"\n', 1).replace("size = 256", "size = 64")
+    text += "\n[render]\nmax_samples = 3000  # the diffusion term's samples: enough for a 16 x 12 image\n"
     path = tmp_path / f"layered_{diffusion}.toml"
     path.write_text(text)
     return path
@@ -154,7 +155,7 @@ def test_layered_method_explain_and_render(capsys, tmp_path):
     assert out.read_bytes()[:8] == PNG_SIGNATURE
     report = json.loads((tmp_path / "l.json").read_text())
     assert report["method"] == "layered" and report["samples"] == 8 and "diffusion" not in report
-    assert [i["name"] for i in report["plan"]] == ["ray marching", "outer-layer diffusion"]
+    assert [i["name"] for i in report["plan"]["items"]] == ["ray marching", "outer-layer diffusion"]
 
 
 def test_layered_method_adds_the_forced_diffusion_term(capsys, tmp_path):

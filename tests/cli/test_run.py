@@ -23,7 +23,8 @@ def job(tmp_path_factory):
     out_dir = tmp_path_factory.mktemp("run") / "nested" / "out"
     stdout, stderr = io.StringIO(), io.StringIO()
     with contextlib.redirect_stdout(stdout), contextlib.redirect_stderr(stderr):
-        code = main(["run", "--out-dir", str(out_dir), "--photons", str(PHOTONS), "--resolution", "48", "48"])
+        code = main(["run", "--out-dir", str(out_dir), "--photons", str(PHOTONS), "--resolution", "48", "48",
+                     "--max-samples", "6000"])
     return code, stdout.getvalue(), stderr.getvalue(), out_dir
 
 

@@ -24,7 +24,7 @@ def test_example_scene_renders():
     img = res.image
     assert img.shape == (30, 40, 3) and np.all(np.isfinite(img))
     hit = np.zeros(30 * 40, bool)
-    hit[np.asarray(res.prepared.pixel)] = True
+    hit[np.asarray(res.prepared.state.march.pixel)] = True
     ss = res.single_scattering.reshape(-1, 3)
     assert np.all(ss[~hit] == 0) and np.all(ss[hit] >= 0)
     assert np.mean(ss[hit].sum(axis=1) > 0) > 0.8  # lit almost everywhere with lights front, beneath, behind

@@ -18,10 +18,10 @@ from jaxsss.photon import TALLIES
 from jaxsss.photon.render import (
     _photon_exitance,
     prepare_photon,
-    render_photon,
     source_power,
     trace_scene,
 )
+from jaxsss.render import render
 from jaxsss.render.scene import load_scene, parse_scene, scene_with
 from tests.gradcheck import central_difference
 
@@ -166,7 +166,8 @@ def test_prepare_photon_reports_the_full_walk_for_a_non_convex_mesh():
                       light={"type": "directional", "direction": [0.3, 0.0, -1.0], "intensity": 1.0})
     pts = np.array([[10.0, 0.0, 3.0], [-13.0, 0.0, 0.0]])
     nrm = np.array([[0.0, 0.0, 1.0], [-1.0, 0.0, 0.0]])
-    _, items, info = prepare_photon(scene, n_photons=500, points=(pts, nrm))
+    _, plan, info = prepare_photon(scene, n_photons=500, points=(pts, nrm))
+    items = plan.items
     assert info["photon_walk"] == "full"
     tally = {k: np.asarray(v) for k, v in info["photon_tally"].items()}
     assert set(tally) == set(TALLIES)
@@ -194,7 +195,8 @@ def test_prepare_photon_bad_input_names_the_argument(kwargs, match):
 @pytest.mark.parametrize("name", ["photon_marble_edge", "photon_backlit_slab", "photon_blocker"])
 def test_example_scenes_render(name):
     scene = load_scene(EXAMPLES / f"{name}.toml")
-    image, report, _prepared = render_photon(scene, n_photons=3000, resolution=(16, 12))
+    result = render(scene, "photon", n_photons=3000, resolution=(16, 12))
+    image, report = result.image, result.report
     assert image.shape == (12, 16, 3)
     assert np.isfinite(image).all() and np.all(image >= 0)
     assert (image > 0).mean() > 0.2  # the object fills part of the frame and is lit

@@ -12,14 +12,13 @@ import numpy as np
 import pytest
 
 import jaxsss
-from jaxsss.render import prepare
+from jaxsss.render import prepare, render
 from jaxsss.render import radiance as rad
 from jaxsss.render.cache import (
     GRADIENTS,
     explain_cached,
     place_caches,
     prepare_cached,
-    render_cached,
     split_disk_constant,
 )
 from tests.gradcheck import assert_grad_matches_fd
@@ -73,8 +72,8 @@ def test_interpolation_is_exact_at_caches_and_converges(sphere):
 
 
 def test_one_pass_and_two_pass_both_run(sphere):
-    two = render_cached(sphere, 0.2, resolution=(16, 16))
-    one = render_cached(sphere, 0.2, resolution=(16, 16), one_pass=True)
+    two = render(sphere, "cached", error_bound=0.2, resolution=(16, 16), always=True)
+    one = render(sphere, "cached", error_bound=0.2, resolution=(16, 16), one_pass=True, always=True)
     assert two.report["n_caches"] == one.report["n_caches"]  # same placement, fewer caches visible in one pass
     for res in (one, two):
         assert res.image.shape == (16, 16, 3) and np.isfinite(res.image).all()
@@ -158,7 +157,7 @@ def test_fit_image_with_the_cached_method(sphere):
     truth = sphere.material.medium
     cached = prepare_cached(sphere, 0.3, cutoff=False, share_channels=False)[0]
     target = np.asarray(cached.image(truth))
-    fit = fit_image(sphere, target, method="cached", cache_error=0.3, max_pixels=300)
+    fit = fit_image(sphere, target, method="cached", error_bound=0.3, always=True, max_pixels=300)
     assert fit.converged, fit.message
     np.testing.assert_allclose(fit.sigma_a, truth.sigma_a, rtol=1e-3)
     np.testing.assert_allclose(fit.sigma_s_prime, truth.sigma_s_prime, rtol=1e-3)
@@ -171,6 +170,23 @@ def test_example_scenes_render_with_the_cached_method(name):
     from jaxsss.render import load_scene
 
     scene = load_scene(Path(__file__).resolve().parents[2] / "examples" / f"{name}.toml")
-    result = render_cached(scene, 0.3, resolution=(12, 12))
+    result = render(scene, "cached", error_bound=0.3, resolution=(12, 12), always=True)
     assert result.image.shape == (12, 12, 3) and np.isfinite(result.image).all() and result.image.max() > 0
     assert 0 < result.report["n_caches"] <= result.report["n_shaded_points"]
+
+
+def test_plan_leaves_caching_out_where_it_does_not_pay(sphere):
+    """Below CACHE_MIN_POINTS shaded points the registered method renders hierarchically and its plan says why;
+    ``always=True`` keeps the caches."""
+    from jaxsss.render import explain_method, prepare_method
+    from jaxsss.render.cache import CACHE_MIN_POINTS, caching_pays
+
+    assert caching_pays(CACHE_MIN_POINTS)[0] and not caching_pays(CACHE_MIN_POINTS - 1)[0]
+    plan = explain_method(sphere, "cached", resolution=(12, 12))
+    item = plan.items[-1]
+    assert plan.method == "cached" and item.name == "irradiance caches" and not item.included
+    assert "left out" in item.reason and f"< {CACHE_MIN_POINTS}" in item.reason
+    prep = prepare_method(sphere, "cached", resolution=(12, 12))
+    assert prep.method == "cached" and prep.diagnostics["n_caches"] == 0 and "placement" not in prep.extras
+    kept = prepare_method(sphere, "cached", resolution=(12, 12), always=True)
+    assert kept.diagnostics["n_caches"] > 0 and kept.plan.items[-1].included

@@ -5,7 +5,7 @@ import numpy as np
 import pytest
 from scipy import integrate
 
-from jaxsss.layered.phase import (
+from jaxsss.phase import (
     PHASE_FUNCTIONS,
     SCHLICK_G_MAX,
     hg_phase,

@@ -1,4 +1,5 @@
-"""Phase functions for the layered single-scattering march: Henyey-Greenstein and Schlick, in 1/sr.
+"""Phase functions of the physics core: Henyey-Greenstein and Schlick, in 1/sr (the renderer's single scattering,
+the layered march and anything else that scatters once use these).
 
 Angle convention (DESIGN.md trap 8). Every function here takes ``mu``, the cosine of the *scattering angle*
 ``theta_s`` between the direction the light travels before scattering and the direction it travels after:

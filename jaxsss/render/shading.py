@@ -1,0 +1,195 @@
+"""Shading points: where the camera's rays hit the translucent object, and the material-free rest of the image.
+
+Every render method shades the same points and turns an exitance (or radiance) at them into an image the same way,
+so this module is the renderer's shared interface for it:
+
+- :func:`shading_points` casts the camera rays (:func:`~jaxsss.render.camera.camera_rays`) against the scene's
+  geometry and returns a :class:`ShadingPoints` (NumPy): positions, normals (flipped towards the eye at
+  silhouettes), directions to the eye, flat pixel indices, lighting at the points (when single scattering or
+  specular need it) and the ``constant`` image of everything that is not the translucent object;
+- :func:`point_shading` is the same for given surface points (validation against Monte Carlo);
+- :func:`constant_image` is the background and the grey Lambertian occluders;
+- :class:`ShadedPoints` is the JAX side (an ``equinox.Module`` every method's state extends): exit radiance from an
+  exitance (:meth:`~ShadedPoints.radiance_from_exitance`) and the image from radiance
+  (:meth:`~ShadedPoints.image_from_radiance`); :func:`shaded_fields` fills its fields from a :class:`ShadingPoints`;
+- :func:`image_stats` is the report's image summary.
+"""
+
+from __future__ import annotations
+
+from typing import Any, NamedTuple
+
+import equinox as eqx
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from jaxsss.medium import Medium
+from jaxsss.render import radiance as rad
+from jaxsss.render.camera import camera_rays
+from jaxsss.render.lights import light_field
+from jaxsss.render.rays import OBJECT_TRANSLUCENT
+
+__all__ = ["ShadedPoints", "ShadingPoints", "constant_image", "face_the_eye", "image_stats", "point_shading",
+           "shaded_fields", "shading_points"]
+
+
+class ShadingPoints(NamedTuple):
+    """The shaded points (camera-ray hits on the translucent object) and the material-free part of the image, in
+    NumPy (``Q`` points, ``C`` channels)."""
+
+    pos: np.ndarray  # (Q, 3) mm
+    normal: np.ndarray  # (Q, 3) unit, facing the eye
+    to_eye: np.ndarray  # (Q, 3) unit
+    pixel: np.ndarray  # (Q,) flat pixel index row * W + col
+    light: Any  # LightField at the points (single scattering, specular), or None
+    constant: np.ndarray  # (H * W, C) background and occluders, already divided by spp
+    shape: tuple  # (H, W)
+    spp: int
+    n_rays: int
+
+    def subset(self, idx: np.ndarray) -> ShadingPoints:
+        """The points ``idx`` only (the image part is unchanged)."""
+        light = None if self.light is None else type(self.light)(*(a[idx] for a in self.light))
+        return self._replace(pos=self.pos[idx], normal=self.normal[idx], to_eye=self.to_eye[idx],
+                             pixel=self.pixel[idx], light=light)
+
+
+def face_the_eye(normal: np.ndarray, to_eye: np.ndarray) -> np.ndarray:
+    """Smooth normals can face away from the eye at silhouettes: reflect those about the view direction, ``(Q, 3)``
+    (a new array)."""
+    normal = np.array(normal, dtype=np.float64)
+    back = np.einsum("ij,ij->i", normal, to_eye) < 0
+    normal[back] = normal[back] - 2 * np.einsum("ij,ij->i", normal[back], to_eye[back])[:, None] * to_eye[back]
+    return normal
+
+
+def constant_image(scene, geometry, rays, ray_idx: np.ndarray, hits, n_channels: int) -> np.ndarray:
+    """``(H * W, C)`` the image of whatever is not the translucent object: the background where the rays ``ray_idx``
+    miss (``hits`` are theirs) and grey Lambertian occluders (``albedo / pi * E``), divided by the samples per
+    pixel."""
+    h, w = rays.shape
+    constant = np.zeros((h * w, n_channels))
+    background = np.broadcast_to(np.asarray(scene.output.background, dtype=np.float64), (n_channels,))
+    missed = ray_idx[~hits.hit]
+    np.add.at(constant, rays.pixel[missed], background / rays.spp)
+    on_occ = np.flatnonzero(hits.obj >= 1)
+    if on_occ.size:
+        y = hits.position[on_occ]
+        ny = geometry.shading_normals(hits.face[on_occ], y)
+        ny = np.where(np.einsum("ij,ij->i", ny, rays.directions[ray_idx[on_occ]])[:, None] > 0, -ny, ny)
+        direct = light_field(scene.lights, y, ny, geometry).irradiance.sum(axis=1)
+        albedo = np.stack([scene.occluders[k - 1].albedo for k in hits.obj[on_occ]])
+        # Lambertian occluder: L = albedo / pi * E.
+        np.add.at(constant, rays.pixel[ray_idx[on_occ]], albedo / np.pi * direct / rays.spp)
+    return constant
+
+
+def shading_points(scene, geometry, plan, resolution, pixel_mask, n_channels: int) -> ShadingPoints:
+    """Camera rays, their hits, the constant image, and the lighting at the shaded points.
+
+    Args:
+        scene: the :class:`~jaxsss.render.scene.Scene`.
+        geometry: its :class:`~jaxsss.render.rays.SceneGeometry` (translucent mesh first).
+        plan: the :class:`~jaxsss.render.plan.ScenePlan` (``shadows``, ``single_scattering``, ``specular``).
+        resolution: ``(W, H)`` overriding the camera's, or None.
+        pixel_mask: optional ``(H, W)`` bool: only these pixels are shaded (the rest stay 0).
+        n_channels: ``C``.
+    """
+    rays = camera_rays(scene.camera, resolution, seed=scene.render.seed)
+    h, w = rays.shape
+    keep = np.ones(len(rays.pixel), dtype=bool) if pixel_mask is None else np.asarray(pixel_mask).reshape(-1)[
+        rays.pixel]
+    hits = geometry.first_hit(rays.origins[keep], rays.directions[keep])
+    ray_idx = np.flatnonzero(keep)
+    constant = constant_image(scene, geometry, rays, ray_idx, hits, n_channels)
+    on_obj = np.flatnonzero(hits.obj == OBJECT_TRANSLUCENT)
+    q_pos = hits.position[on_obj]
+    to_eye = -rays.directions[ray_idx[on_obj]]
+    q_normal = face_the_eye(geometry.shading_normals(hits.face[on_obj], q_pos), to_eye)
+    q_light = None
+    if plan.single_scattering or plan.specular:
+        q_light = light_field(scene.lights, q_pos, q_normal, geometry if plan.shadows else None)
+    return ShadingPoints(q_pos, q_normal, to_eye, rays.pixel[ray_idx[on_obj]], q_light, constant, (h, w), rays.spp,
+                         len(rays.pixel))
+
+
+def point_shading(points, n_channels: int, owner: str = "prepare") -> ShadingPoints:
+    """Shading state for given surface points instead of the camera's (validation against Monte Carlo): one "pixel"
+    per point, viewed along its normal, nothing else in the image; ``points`` is ``(positions (Q, 3) mm, outward
+    normals (Q, 3))``."""
+    pos, normal = (np.asarray(a, dtype=np.float64) for a in points)
+    if pos.ndim != 2 or pos.shape[1] != 3 or normal.shape != pos.shape:
+        raise ValueError(f"{owner}(points=...) needs two (Q, 3) arrays; got {pos.shape} and {normal.shape}")
+    normal = normal / np.linalg.norm(normal, axis=1, keepdims=True)
+    q = len(pos)
+    return ShadingPoints(pos, normal, normal, np.arange(q), None, np.zeros((q, n_channels)), (1, q), 1, q)
+
+
+class ShadedPoints(eqx.Module):
+    """The shaded points of an image and the material-free rest of it, as JAX arrays: what turns an exitance
+    ``(Q, C)`` into the image. Every diffusion method's state extends it."""
+
+    query_pos: jax.Array  # (Q, 3)
+    query_normal: jax.Array  # (Q, 3)
+    to_eye: jax.Array  # (Q, 3)
+    query_to_light: jax.Array | None  # (Q, L, 3) (single scattering and specular only)
+    query_irradiance: jax.Array | None  # (Q, L, C)
+    query_pixel: jax.Array  # (Q,) flat pixel index
+    constant: jax.Array  # (H * W, C): background and occluders, already divided by spp
+    shape: tuple = eqx.field(static=True)  # (H, W)
+    spp: int = eqx.field(static=True)
+    single_scattering: bool = eqx.field(static=True)
+    specular_roughness: float | None = eqx.field(static=True)
+
+    @property
+    def n_queries(self) -> int:
+        return self.query_pos.shape[0]
+
+    def radiance_from_exitance(self, medium: Medium, exitance):
+        """Radiance towards the eye at the shaded points, ``(Q, C)`` W/(mm^2 sr): diffusion plus the optional
+        single-scattering and specular terms."""
+        cos_o = jnp.clip(jnp.sum(self.query_normal * self.to_eye, axis=-1), 0.0, 1.0)
+        out = rad.exit_radiance(medium, exitance, cos_o)
+        if self.single_scattering:
+            out = out + rad.single_scattering(medium, self.query_normal, self.to_eye, self.query_to_light,
+                                              self.query_irradiance)
+        if self.specular_roughness is not None:
+            out = out + rad.specular_ggx(medium, self.query_normal, self.to_eye, self.query_to_light,
+                                         self.query_irradiance, self.specular_roughness)
+        return out
+
+    def image_from_radiance(self, radiance):
+        """``(H, W, C)`` linear image: the mean over each pixel's rays plus the constant part."""
+        h, w = self.shape
+        img = jax.ops.segment_sum(radiance / self.spp, self.query_pixel, num_segments=h * w)
+        return (img + self.constant).reshape(h, w, -1)
+
+
+def shaded_fields(scene, plan, shading: ShadingPoints) -> dict[str, Any]:
+    """The :class:`ShadedPoints` fields of ``shading`` as JAX arrays (keyword arguments for any method's state)."""
+    light = shading.light
+    return {
+        "query_pos": jnp.asarray(shading.pos),
+        "query_normal": jnp.asarray(shading.normal),
+        "to_eye": jnp.asarray(shading.to_eye),
+        "query_to_light": None if light is None else jnp.asarray(light.to_light),
+        "query_irradiance": None if light is None else jnp.asarray(light.irradiance),
+        "query_pixel": jnp.asarray(shading.pixel),
+        "constant": jnp.asarray(shading.constant),
+        "shape": shading.shape,
+        "spp": shading.spp,
+        "single_scattering": plan.single_scattering,
+        "specular_roughness": scene.material.specular_roughness if plan.specular else None,
+    }
+
+
+def image_stats(image: np.ndarray) -> dict[str, Any]:
+    """The report's summary of a linear ``(H, W, C)`` image: per-channel min, max and mean, and whether it is
+    finite."""
+    return {
+        "min": image.min(axis=(0, 1)).tolist(),
+        "max": image.max(axis=(0, 1)).tolist(),
+        "mean": image.mean(axis=(0, 1)).tolist(),
+        "finite": bool(np.isfinite(image).all()),
+    }

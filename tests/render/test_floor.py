@@ -1,0 +1,199 @@
+"""The scene floor's NumPy pieces that every method stands on: the plan (jaxsss.render.plan), the sample count and
+placement (jaxsss.render.samples), the lights (jaxsss.render.lights) and the camera (jaxsss.render.camera)."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from jaxsss.render import builtin_mesh, make_plan
+from jaxsss.render.camera import camera_frame, camera_rays
+from jaxsss.render.lights import light_field, spot_factor
+from jaxsss.render.plan import PlanItem, ScenePlan, explain_items
+from jaxsss.render.samples import sample_count, sample_surface, texture_lookup
+from jaxsss.render.scene import Camera, Light
+from tests.render.test_renderer import _scene
+
+
+# --- the plan -------------------------------------------------------------------------------------------------------
+def test_plan_of_a_lone_convex_sphere():
+    plan = make_plan(_scene())
+    items = {i.name: i for i in plan.items}
+    assert isinstance(plan, ScenePlan) and plan.method == "hierarchical"
+    # A convex mesh alone: no shadow rays, no indirect bounce, and the reasons say why.
+    assert not plan.shadows and "convex mesh alone" in items["shadow rays"].reason
+    assert not plan.indirect and "lone object" in items["indirect bounce"].reason
+    assert plan.n_samples >= 16 and f"{plan.n_samples} samples" in items["irradiance samples"].reason
+    d = plan.to_dict()
+    assert d["method"] == "hierarchical" and len(d["items"]) == len(plan.items)
+    assert plan.explain().splitlines()[0].startswith("+ method")
+
+
+def test_plan_switches_and_forced_settings():
+    floor = [{"builtin": "slab", "width": 80.0, "depth": 80.0, "thickness": 1.0, "translate": [0.0, 0.0, -6.0]}]
+    plan = make_plan(_scene(occluders=floor))
+    assert plan.shadows and plan.indirect  # an occluder casts shadows and reflects light
+    forced = make_plan(_scene(occluders=floor, render_opts={"shadows": "off", "single_scattering": "on"}))
+    items = {i.name: i for i in forced.items}
+    assert not forced.shadows and "forced off" in items["shadow rays"].reason
+    assert forced.single_scattering and "forced on" in items["single scattering"].reason
+
+
+def test_plan_cut_off_radius_and_shared_channel():
+    # sigma_tr = sqrt(3 sa st') = sqrt(3 * 0.5 * 2.5) = 1.94/mm: r_cut = ln(1/tol)/sigma_tr = 3.6 mm < the 10 mm sphere.
+    grey = {"sigma_a": 0.5, "sigma_s_prime": 2.0, "eta": 1.3}
+    plan = make_plan(_scene(material=grey))
+    sigma_tr = math.sqrt(3 * 0.5 * 2.5)
+    assert plan.r_cut == pytest.approx(math.log(1e3) / sigma_tr) and plan.shared_channel
+    # Fitting turns both off (they depend on the material).
+    fit = make_plan(_scene(material=grey), cutoff=False, share_channels=False)
+    assert fit.r_cut is None and not fit.shared_channel
+    assert make_plan(_scene(material=grey), method="direct").r_cut is None
+
+
+def test_explain_items_marks_kept_and_left_out():
+    text = explain_items([PlanItem("a", True, "kept"), PlanItem("longer", False, "left out")])
+    assert text.splitlines() == ["+ a       kept", "- longer  left out"]
+
+
+# --- samples --------------------------------------------------------------------------------------------------------
+def test_sample_count_follows_the_paper_and_caps():
+    n, why = sample_count(area=1000.0, l_u=0.5)
+    assert n == math.ceil(1000.0 / (math.pi * 0.25)) and "A/(pi l_u^2)" in why
+    assert sample_count(1000.0, 0.5, density=2.0)[0] == math.ceil(2000.0 / (math.pi * 0.25))
+    capped, why = sample_count(1000.0, 0.5, max_samples=100)
+    assert capped == 100 and "capped at max_samples = 100" in why
+    assert sample_count(1e-6, 10.0)[0] == 16  # never fewer than 16
+
+
+@pytest.mark.parametrize("method", ["stratified", "even"])
+def test_samples_lie_on_the_mesh_and_carry_its_area(method):
+    mesh = builtin_mesh("sphere", radius=3.0, subdivisions=3)
+    pos, face, areas = sample_surface(mesh, 400, seed=1, method=method)
+    assert pos.shape == (len(face), 3) and len(areas) == len(pos) > 200
+    assert areas.sum() == pytest.approx(mesh.area, rel=1e-12)  # the total area is exact
+    # On the faces they name (distance to the face's plane).
+    n = mesh.face_normals[face]
+    assert np.abs(np.einsum("ij,ij->i", pos - mesh.triangles[face, 0], n)).max() < 1e-9
+    again = sample_surface(mesh, 400, seed=1, method=method)[0]
+    np.testing.assert_array_equal(pos, again)  # deterministic for a seed
+
+
+def test_stratified_samples_split_area_evenly():
+    """Every half of a flat square gets its share of the points to within one point (stratification), where
+    independent random points would scatter by sqrt(N)/2."""
+    mesh = builtin_mesh("slab", width=10.0, depth=10.0, thickness=0.01, subdivisions=4)
+    pos, _, _ = sample_surface(mesh, 2000, seed=3)
+    top = pos[pos[:, 2] > 0]
+    left = np.count_nonzero(top[:, 0] < 0)
+    assert abs(left - len(top) / 2) <= 0.02 * len(top)
+
+
+def test_sample_surface_rejects_bad_arguments():
+    mesh = builtin_mesh("sphere", radius=1.0, subdivisions=1)
+    with pytest.raises(ValueError, match="method='nope'"):
+        sample_surface(mesh, 10, method="nope")
+    with pytest.raises(ValueError, match=r"n=0\) is outside the allowed range \[1, inf\)"):
+        sample_surface(mesh, 0)
+
+
+def test_texture_lookup_is_bilinear_and_wraps():
+    tex = np.arange(4.0).reshape(2, 2, 1)
+    # Texel centres return their value; halfway between two texels, the mean; u = 1 wraps to u = 0.
+    values = texture_lookup(tex, np.array([[0.25, 0.75], [0.5, 0.75], [1.25, 0.75]]))
+    assert values.shape == (3, 1)
+    assert values[0, 0] == pytest.approx(values[2, 0])
+
+
+# --- lights ---------------------------------------------------------------------------------------------------------
+def _light(kind, **kw):
+    base = {"position": None, "direction": None, "intensity": np.array([1.0, 1.0, 1.0]), "cone_deg": 180.0,
+            "falloff_deg": 0.0}
+    base.update(kw)
+    return Light(kind, **{k: (np.asarray(v, float) if k in ("position", "direction", "intensity") and v is not None
+                              else v) for k, v in base.items()})
+
+
+def test_point_light_follows_the_inverse_square_and_cosine_laws():
+    light = _light("point", position=[0.0, 0.0, 10.0], intensity=[100.0, 50.0, 25.0])
+    pts = np.array([[0.0, 0.0, 0.0], [10.0, 0.0, 0.0], [0.0, 0.0, -5.0]])
+    nrm = np.array([[0.0, 0.0, 1.0], [0.0, 0.0, 1.0], [0.0, 0.0, -1.0]])
+    f = light_field([light], pts, nrm)
+    # E = I cos / d^2: straight below at 10 mm; 45 degrees at sqrt(200) mm; facing away: 0.
+    np.testing.assert_allclose(f.irradiance[0, 0], np.array([100.0, 50.0, 25.0]) / 100.0)
+    np.testing.assert_allclose(f.irradiance[1, 0], np.array([100.0, 50.0, 25.0]) / 200.0 * math.sqrt(0.5))
+    np.testing.assert_array_equal(f.irradiance[2, 0], 0.0)
+    np.testing.assert_allclose(f.cos[:, 0], [1.0, math.sqrt(0.5), 0.0])
+    np.testing.assert_allclose(np.linalg.norm(f.to_light, axis=-1), 1.0)
+
+
+def test_directional_light_is_irradiance_on_a_facing_surface():
+    light = _light("directional", direction=[0.0, 0.0, -1.0], intensity=[2.0, 2.0, 2.0])
+    nrm = np.array([[0.0, 0.0, 1.0], [math.sqrt(0.5), 0.0, math.sqrt(0.5)]])
+    f = light_field([light], np.zeros((2, 3)), nrm)
+    np.testing.assert_allclose(f.irradiance[:, 0, 0], [2.0, 2.0 * math.sqrt(0.5)])
+
+
+def test_spot_factor_and_cone():
+    assert spot_factor(np.array([1.0]), 30.0, 0.0)[0] == 1.0
+    assert spot_factor(np.array([math.cos(math.radians(31.0))]), 30.0, 0.0)[0] == 0.0
+    # Smoothstep over the falloff: half way in angle gives 1/2.
+    assert spot_factor(np.array([math.cos(math.radians(25.0))]), 30.0, 10.0)[0] == pytest.approx(0.5)
+    spot = _light("spot", position=[0.0, 0.0, 10.0], direction=[0.0, 0.0, -1.0], cone_deg=30.0)
+    pts = np.array([[0.0, 0.0, 0.0], [20.0, 0.0, 0.0]])  # on the axis; 63 degrees off it
+    f = light_field([spot], pts, np.tile([0.0, 0.0, 1.0], (2, 1)))
+    assert f.irradiance[0, 0, 0] > 0 and f.irradiance[1, 0, 0] == 0.0
+
+
+def test_shadow_rays_block_lights_behind_an_occluder():
+    from jaxsss.render.rays import SceneGeometry
+
+    blocker = builtin_mesh("slab", width=4.0, depth=4.0, thickness=0.5)
+    blocker.apply_translation([0.0, 0.0, 5.0])
+    ground = builtin_mesh("slab", width=40.0, depth=40.0, thickness=0.5)
+    geometry = SceneGeometry(ground, [blocker])
+    light = _light("point", position=[0.0, 0.0, 20.0], intensity=[1.0, 1.0, 1.0])
+    pts = np.array([[0.0, 0.0, 0.25], [15.0, 0.0, 0.25]])  # under the blocker; in the open
+    nrm = np.tile([0.0, 0.0, 1.0], (2, 1))
+    lit = light_field([light], pts, nrm, geometry).irradiance[:, 0, 0]
+    unshadowed = light_field([light], pts, nrm).irradiance[:, 0, 0]
+    assert lit[0] == 0.0 and unshadowed[0] > 0 and lit[1] == pytest.approx(unshadowed[1])
+
+
+# --- camera ---------------------------------------------------------------------------------------------------------
+def _camera(**kw):
+    base = dict(position=np.array([0.0, -10.0, 0.0]), look_at=np.zeros(3), up=np.array([0.0, 0.0, 1.0]),
+                fov_deg=60.0, resolution=(4, 2), spp=1)
+    base.update(kw)
+    return Camera(**base)
+
+
+def test_camera_frame_is_orthonormal_and_right_handed():
+    f, r, u = camera_frame(_camera())
+    np.testing.assert_allclose(f, [0.0, 1.0, 0.0])
+    np.testing.assert_allclose(r, [1.0, 0.0, 0.0], atol=1e-15)  # looking along +y with z up: +x is to the right
+    # (right, up, -forward) is right-handed: the camera looks down its own -z axis.
+    np.testing.assert_allclose(np.cross(r, u), -f, atol=1e-15)
+    np.testing.assert_allclose([f @ r, f @ u, r @ u], 0.0, atol=1e-15)
+
+
+def test_camera_rays_cover_the_field_of_view():
+    rays = camera_rays(_camera(resolution=(64, 32)))
+    assert rays.shape == (32, 64) and rays.spp == 1 and len(rays.pixel) == 64 * 32
+    np.testing.assert_allclose(np.linalg.norm(rays.directions, axis=1), 1.0)
+    # Row 0 is the top: its rays point up (+z); column 0 is the left (-x, the camera looks along +y).
+    d = rays.directions.reshape(32, 64, 3)
+    assert np.all(d[0, :, 2] > 0) and np.all(d[-1, :, 2] < 0) and np.all(d[:, 0, 0] < 0)
+    # The vertical field of view: the angle between the top and bottom edge rays approaches fov_deg.
+    top, bottom = d[0, 32], d[-1, 32]
+    assert math.degrees(math.acos(top @ bottom)) == pytest.approx(60.0 * 31 / 32, rel=0.02)
+
+
+def test_camera_rays_with_samples_per_pixel_are_stratified_and_seeded():
+    rays = camera_rays(_camera(spp=4), seed=2)
+    assert len(rays.pixel) == 8 * 4 and np.all(np.bincount(rays.pixel) == 4)
+    np.testing.assert_array_equal(rays.directions, camera_rays(_camera(spp=4), seed=2).directions)
+    assert not np.array_equal(rays.directions, camera_rays(_camera(spp=4), seed=3).directions)
+    assert camera_rays(_camera(), resolution=(6, 3)).shape == (3, 6)
