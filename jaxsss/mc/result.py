@@ -64,7 +64,8 @@ class MCResult:
     compile_seconds (0 when the kernel was already compiled), events (lane events of live photons: interactions +
     interface hits), batches, lanes, batch_size, max_steps; stderr_method (``"photons"``: per-photon second
     moments; ``"batches"``: the spread of independent batch means, used with radial splitting), split_length,
-    split_start and split_stop (mm; None, 0 and None without splitting).
+    split_start and split_stop (mm; None, 0 and None without splitting); devices (the number of devices the photons
+    were split over).
     """
 
     photons: int
@@ -116,6 +117,7 @@ class MCResult:
     split_length: float | None = None
     split_start: float = 0.0
     split_stop: float | None = None
+    devices: int = 1
 
     # --- Views -----------------------------------------------------------------------------------------------------
     @property
