@@ -12,8 +12,8 @@ Rows:
   divides by the number of devices. ``ratio_to_mcml`` = seconds per photon / MCML's (goal: below 1 on both cores).
   With ``JAXSSS_MCML=/path/to/mcml`` (a locally built MCML 1.2.2; not part of the project), MCML itself is timed in
   the same run as well.
-- ``startup``: wall time of a whole ``jaxsss mc`` process (1000 photons) with an empty compilation cache (cold), the
-  same cache again (warm), and the cache off; and of ``import jaxsss.cli`` alone.
+- ``startup``: wall and CPU time of a whole ``jaxsss mc`` process (1000 photons) with an empty compilation cache
+  (cold), the same cache again (warm), and the cache off; and of ``import jaxsss.cli`` alone.
 - ``throughput`` and ``van de Hulst slab``: the albedo sweep and error-versus-photons rows of the earlier version of
   this benchmark (n = 1, g = 0, sigma_t = 1/mm; on every device).
 
@@ -23,6 +23,7 @@ For the 1- versus 2-device scaling the process asks JAX for one CPU device per u
 from __future__ import annotations
 
 import os
+import resource
 import subprocess
 import sys
 import tempfile
@@ -131,6 +132,7 @@ def mcml_rows(cfg) -> tuple[list, dict]:
             extra = dict(photons=n, devices=res.devices, lanes=res.lanes, seconds_per_1e6_photons=s6,
                          cpu_seconds=cpu, events_per_photon=res.events / n,
                          events_per_second_per_core=res.events / res.seconds / res.devices,
+                         lane_occupancy=res.lane_occupancy,
                          mcml_seconds_per_1e6=mcml_s, mcml_source=source, ratio_to_mcml=s6 / mcml_s,
                          speedup_vs_1_device=one / res.seconds, speedup_vs_before=old_s / res.seconds,
                          R_diffuse=res.R_diffuse, T=res.T)
@@ -140,17 +142,21 @@ def mcml_rows(cfg) -> tuple[list, dict]:
             rows.append(make_row(NAME, "mcml " + case, label, res.R_diffuse_stderr, "stderr of R_diffuse",
                                  res.seconds, comp, **extra))
             print(f"  {case:18s} {label:32s} {s6:7.2f} s/1e6  {extra['events_per_second_per_core']:9.3g} ev/s/core "
-                  f"x{s6 / mcml_s:5.2f} MCML  x{one / res.seconds:4.2f} vs 1 dev  x{old_s / res.seconds:4.2f} vs "
+                  f"occ {res.lane_occupancy:.2f}  x{s6 / mcml_s:5.2f} MCML  x{one / res.seconds:4.2f} vs 1 dev  x{old_s / res.seconds:4.2f} vs "
                   f"before  Rd {res.R_diffuse:.5f}+-{res.R_diffuse_stderr:.5f}"
                   + (f"  (MCML here {1e6 * local_mcml / n:.2f} s/1e6)" if local_mcml else ""), flush=True)
             summary[f"{case}: {label}"] = {"seconds_per_1e6_photons": s6, "ratio_to_mcml": s6 / mcml_s}
     return rows, summary
 
 
-def _process_seconds(argv, env) -> float:
+def _process_seconds(argv, env) -> tuple[float, float]:
+    """Wall seconds and CPU seconds (user + system) of a child process; CPU time is the load-robust figure."""
+    r0 = resource.getrusage(resource.RUSAGE_CHILDREN)
     t0 = time.perf_counter()
     subprocess.run(argv, env=env, check=True, capture_output=True, cwd=ROOT)
-    return time.perf_counter() - t0
+    wall = time.perf_counter() - t0
+    r1 = resource.getrusage(resource.RUSAGE_CHILDREN)
+    return wall, (r1.ru_utime - r0.ru_utime) + (r1.ru_stime - r0.ru_stime)
 
 
 def startup_rows() -> tuple[list, dict]:
@@ -168,10 +174,10 @@ def startup_rows() -> tuple[list, dict]:
             "jaxsss mc, warm cache (again)": _process_seconds(cli, env_cache),
             "jaxsss mc, cache off": _process_seconds(cli, dict(env, JAXSSS_COMPILATION_CACHE="off")),
         }
-    for label, s in timings.items():
-        rows.append(make_row(NAME, "startup", label, None, "none", s, None, photons=1000))
-        summary["startup: " + label] = s
-        print(f"  startup {label:32s} {s:6.2f} s", flush=True)
+    for label, (s, cpu) in timings.items():
+        rows.append(make_row(NAME, "startup", label, None, "none", s, None, photons=1000, cpu_seconds=cpu))
+        summary["startup: " + label] = {"wall_seconds": s, "cpu_seconds": cpu}
+        print(f"  startup {label:32s} {s:6.2f} s wall  {cpu:6.2f} s CPU", flush=True)
     return rows, summary
 
 

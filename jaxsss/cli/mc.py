@@ -23,8 +23,8 @@ Prints the totals per incident photon: R_specular (first-surface reflection), R_
 lit face), T (everything leaving the far face, unscattered light included; T_unscattered also shown), A (absorbed),
 each with a standard error from per-photon second moments. --json prints one object with the keys R_specular,
 R_diffuse, R_diffuse_stderr, T, T_stderr, T_unscattered, A, A_stderr, R_single, R_multiple, mean_exit_radius,
-step_cap_hits, photons, seed, seconds, devices (and r_mm, R, R_stderr, T, T_stderr profiles when -o is not used but --r-max
-is). -o FILE.csv writes the radial profile on --r-bins equal bins of [0, --r-max] mm: columns r_mm (bin centre),
+step_cap_hits, photons, seed, seconds, devices (and r_mm, R, R_stderr, T, T_stderr profiles when -o is not used
+but --r-max is). -o FILE.csv writes the radial profile on --r-bins equal bins of [0, --r-max] mm: columns r_mm (bin centre),
 R, R_stderr (and T, T_stderr for a slab), per incident photon per mm^2, with a '#' header of the parameters.
 
 The photons are split over one JAX device per usable core (--devices N to choose; on a GPU machine, the GPUs): each

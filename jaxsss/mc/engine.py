@@ -401,7 +401,7 @@ def _assemble(t, N, R_specular, cfg, r_edges, x_edges, y_edges, path_edges, **me
     else:
         mean_r, mean_r_err = float("nan"), float("nan")
     kw = dict(
-        photons=N, lanes=cfg.lanes, max_steps=cfg.max_steps, events=int(t["events"]),
+        photons=N, lanes=cfg.lanes, max_steps=cfg.max_steps, events=int(t["events"]), iterations=int(t["iterations"]),
         R_specular=float(R_specular),
         R_diffuse=float(tot[0, 0] / N), R_diffuse_stderr=float(R_err),
         R_order=order_mean[0], R_order_stderr=order_err[0],

@@ -30,14 +30,16 @@ for name, kw in (("one", dict(devices=1)), ("two", dict(devices=2)), ("two_again
     kw.setdefault("seed", 7)
     r = simulate(stack, {PHOTONS}, progress=False, **kw)
     out[name] = dict(devices=r.devices, photons=r.photons, R=r.R_diffuse, R_se=r.R_diffuse_stderr, T=r.T,
-                     T_se=r.T_stderr, A=r.A, A_se=r.A_stderr, balance=r.weight_balance, lanes=r.lanes)
+                     T_se=r.T_stderr, A=r.A, A_se=r.A_stderr, balance=r.weight_balance, lanes=r.lanes,
+                     occupancy=r.lane_occupancy)
 print(json.dumps(out))
 """
 
 
 @pytest.fixture(scope="module")
 def runs():
-    env = dict(os.environ, JAX_NUM_CPU_DEVICES="2", PYTHONPATH=str(ROOT) + os.pathsep + os.environ.get("PYTHONPATH", ""))
+    path = str(ROOT) + os.pathsep + os.environ.get("PYTHONPATH", "")
+    env = dict(os.environ, JAX_NUM_CPU_DEVICES="2", PYTHONPATH=path)
     proc = subprocess.run([sys.executable, "-c", CHILD], env=env, capture_output=True, text=True, timeout=300)
     assert proc.returncode == 0, proc.stderr[-3000:]
     return json.loads(proc.stdout.strip().splitlines()[-1])
@@ -58,6 +60,7 @@ def test_every_photon_is_run_exactly_once_across_devices(runs):
     for r in runs.values():
         assert r["photons"] == PHOTONS
         assert abs(r["balance"] - 1.0) < 1e-12
+        assert 0.3 < r["occupancy"] <= 1.0  # events / (iterations x lanes), iterations summed over devices
 
 
 def test_reproducible_for_a_given_device_count(runs):
