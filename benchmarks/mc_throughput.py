@@ -22,6 +22,7 @@ For the 1- versus 2-device scaling the process asks JAX for one CPU device per u
 
 from __future__ import annotations
 
+import json
 import os
 import resource
 import subprocess
@@ -174,6 +175,20 @@ def startup_rows() -> tuple[list, dict]:
             "jaxsss mc, warm cache (again)": _process_seconds(cli, env_cache),
             "jaxsss mc, cache off": _process_seconds(cli, dict(env, JAXSSS_COMPILATION_CACHE="off")),
         }
+        # Per photon, the CLI runs the very same simulate() call: its run time (seconds minus compile_seconds)
+        # against the API's on as many devices, in the same run.
+        n = 200_000
+        out = subprocess.run(cli[:-2] + [str(n), "--json"], env=env_cache, check=True, capture_output=True,
+                             text=True, cwd=ROOT).stdout
+        got = json.loads(out)
+        cli_s = got["seconds"] - got["compile_seconds"]  # seconds includes the compilation (or cache load)
+        stack = Stack.half_space(0.17, 0.88, 0.0, 1.3)
+        api = simulate(stack, n, seed=0, progress=False)
+        api_s = api.seconds - api.compile_seconds
+    rows.append(make_row(NAME, "cli vs api", "skin1 green, 2e5 photons", None, "none", cli_s, None, photons=n,
+                         api_seconds=api_s, cli_over_api=cli_s / api_s))
+    summary["cli seconds / api seconds (2e5 photons, same devices)"] = cli_s / api_s
+    print(f"  jaxsss mc {cli_s:.2f} s vs simulate() {api_s:.2f} s for {n} photons (ratio {cli_s / api_s:.2f})")
     for label, (s, cpu) in timings.items():
         rows.append(make_row(NAME, "startup", label, None, "none", s, None, photons=1000, cpu_seconds=cpu))
         summary["startup: " + label] = {"wall_seconds": s, "cpu_seconds": cpu}

@@ -23,13 +23,15 @@ Prints the totals per incident photon: R_specular (first-surface reflection), R_
 lit face), T (everything leaving the far face, unscattered light included; T_unscattered also shown), A (absorbed),
 each with a standard error from per-photon second moments. --json prints one object with the keys R_specular,
 R_diffuse, R_diffuse_stderr, T, T_stderr, T_unscattered, A, A_stderr, R_single, R_multiple, mean_exit_radius,
-step_cap_hits, photons, seed, seconds, devices (and r_mm, R, R_stderr, T, T_stderr profiles when -o is not used
-but --r-max is). -o FILE.csv writes the radial profile on --r-bins equal bins of [0, --r-max] mm: columns r_mm (bin centre),
-R, R_stderr (and T, T_stderr for a slab), per incident photon per mm^2, with a '#' header of the parameters.
+step_cap_hits, photons, seed, seconds, compile_seconds (included in seconds), devices (and r_mm, R, R_stderr, T,
+T_stderr profiles when -o is not used but --r-max is). -o FILE.csv writes the radial profile on --r-bins equal bins
+of [0, --r-max] mm: columns r_mm (bin centre), R, R_stderr (and T, T_stderr for a slab), per incident photon
+per mm^2, with a '#' header of the parameters.
 
-The photons are split over one JAX device per usable core (--devices N to choose; on a GPU machine, the GPUs): each
-device runs its share with its own random stream, so a result is reproducible for a given seed and device count,
-and results for different counts agree within their standard errors. Compiled programs are cached on disk
+The photons are split over one JAX device per usable core (--devices N to choose, or JAX_NUM_CPU_DEVICES=N in the
+environment; on a GPU machine, the GPUs): each device runs its share with its own random stream, so a result is
+reproducible for a given seed and device count, and results for different counts agree within their standard
+errors. Compiled programs are cached on disk
 (~/.cache/jaxsss/jax; JAXSSS_COMPILATION_CACHE=DIR or off), so only the first run of a kind compiles."""
 
 
@@ -100,11 +102,16 @@ def _write_csv(path, res, slab: bool, args) -> Path:
 
 
 def _devices(args) -> int | None:
-    """Ask JAX for one CPU device per core (or ``--devices``) before its backend starts; the count to use."""
+    """Ask JAX for ``--devices`` CPU devices, or by default one per usable core unless the user already chose a
+    number (``JAX_NUM_CPU_DEVICES``), before its backend starts; the count to pass to ``simulate``."""
+    import jax
+
     from jaxsss.mc.engine import usable_cores, use_cpu_devices
 
     if args.devices is not None and args.devices < 1:
         raise CLIError(f"--devices={args.devices} is outside the allowed range [1, inf)")
+    if args.devices is None and jax.config.jax_num_cpu_devices >= 0:
+        return None  # the user's (or the test suite's) JAX_NUM_CPU_DEVICES
     try:
         use_cpu_devices(args.devices or usable_cores())
     except ValueError:  # JAX already runs (the CLI called in-process): use the devices it has
@@ -151,7 +158,7 @@ def run(args) -> int:
     if args.json:
         obj = {k: float(v) for k, v in totals.items()}
         obj.update(mean_exit_radius=mean_r, step_cap_hits=res.step_cap_hits, photons=res.photons, seed=res.seed,
-                   seconds=res.seconds, devices=res.devices)
+                   seconds=res.seconds, compile_seconds=res.compile_seconds, devices=res.devices)
         if r_edges is not None and not args.output:
             obj.update(r_mm=res.r_centres.tolist(), R=res.R_r.tolist(), R_stderr=res.R_r_stderr.tolist())
             if slab:

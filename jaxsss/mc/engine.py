@@ -62,7 +62,7 @@ def _sharded_kernel(cfg: KernelConfig, mesh: Mesh):
     and the tallies are summed over devices (``psum``), so the output is replicated."""
 
     def per_device(params, key, budget):
-        d = lax.axis_index(AXIS)
+        d = lax.axis_index(AXIS).astype(budget.dtype)
         D = mesh.shape[AXIS]
         share = budget // D + (d < budget % D).astype(budget.dtype)
         tallies = batch_kernel(cfg, params, jax.random.fold_in(key, d), share)

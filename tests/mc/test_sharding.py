@@ -22,6 +22,7 @@ PHOTONS = 20_001  # odd: the devices' shares differ by one photon
 CHILD = f"""
 import json, jax
 from jaxsss.mc import Stack, simulate
+jax.config.update("jax_numpy_dtype_promotion", "strict")  # as in tests/conftest.py
 assert len(jax.devices()) == 2, jax.devices()
 stack = Stack.slab(0.1, 0.9, 0.75, 1.4, 1.0)
 out = {{}}
