@@ -10,9 +10,11 @@ Conventions and choices (see also :mod:`jaxsss.mc._kernel`):
   faces. Chosen over weight splitting because a lane then always carries one packet.
 - Absorption by weight at each interaction (``w *= albedo``); Russian roulette below ``weight_threshold`` with
   survival chance ``roulette_chance``.
-- Determinism: the result is a function of ``(stack, photons, seed, angle, grids, batch_size, lanes)``. Batch ``b``
-  uses ``jax.random.fold_in(jax.random.key(seed), b)``; changing ``lanes`` or ``batch_size`` changes the random
-  streams (not the expectation).
+- Determinism: the result is a function of ``(stack, photons, seed, angle, grids, batch_size, lanes, devices)``.
+  Batch ``b`` uses ``jax.random.fold_in(jax.random.key(seed), b)`` (and device ``d`` of several folds in ``d``);
+  changing ``lanes``, ``batch_size`` or the number of devices changes the random streams (not the expectation).
+- Devices: each batch's photons are split over ``devices`` with ``jax.shard_map``; every device runs its share in
+  its own loop and the tallies are summed (``psum``). See :func:`simulate` and :func:`use_cpu_devices`.
 - Radial splitting (``split_length``): a weight window for the far field (:mod:`jaxsss.mc._kernel`). Copies of
   one history are correlated, so standard errors then come from the spread of ``SPLIT_BATCHES`` independent batch
   means (``MCResult.stderr_method == "batches"``) instead of per-photon second moments.
