@@ -12,6 +12,8 @@ Rows:
   divides by the number of devices. ``ratio_to_mcml`` = seconds per photon / MCML's (goal: below 1 on both cores).
   With ``JAXSSS_MCML=/path/to/mcml`` (a locally built MCML 1.2.2; not part of the project), MCML itself is timed in
   the same run as well.
+- ``cli vs api``: run time (without compilation) of ``jaxsss mc`` and of ``simulate()`` for 2e5 photons, each in a
+  fresh process with one device per core.
 - ``startup``: wall and CPU time of a whole ``jaxsss mc`` process (1000 photons) with an empty compilation cache
   (cold), the same cache again (warm), and the cache off; and of ``import jaxsss.cli`` alone.
 - ``throughput`` and ``van de Hulst slab``: the albedo sweep and error-versus-photons rows of the earlier version of
@@ -176,15 +178,19 @@ def startup_rows() -> tuple[list, dict]:
             "jaxsss mc, cache off": _process_seconds(cli, dict(env, JAXSSS_COMPILATION_CACHE="off")),
         }
         # Per photon, the CLI runs the very same simulate() call: its run time (seconds minus compile_seconds)
-        # against the API's on as many devices, in the same run.
+        # against the API's on as many devices, each in a fresh process, in the same run.
         n = 200_000
         out = subprocess.run(cli[:-2] + [str(n), "--json"], env=env_cache, check=True, capture_output=True,
                              text=True, cwd=ROOT).stdout
         got = json.loads(out)
         cli_s = got["seconds"] - got["compile_seconds"]  # seconds includes the compilation (or cache load)
-        stack = Stack.half_space(0.17, 0.88, 0.0, 1.3)
-        api = simulate(stack, n, seed=0, progress=False)
-        api_s = api.seconds - api.compile_seconds
+        # The API in a fresh process too (one run after start, like the CLI; a warmed-up process runs faster).
+        api_code = ("from jaxsss.mc import use_cpu_devices; use_cpu_devices()\n"
+                    "from jaxsss.mc import Stack, simulate\n"
+                    f"r = simulate(Stack.half_space(0.17, 0.88, 0.0, 1.3), {n}, progress=False)\n"
+                    "print(r.seconds - r.compile_seconds)")
+        api_s = float(subprocess.run([sys.executable, "-c", api_code], env=env_cache, check=True,
+                                     capture_output=True, text=True, cwd=ROOT).stdout.split()[-1])
     rows.append(make_row(NAME, "cli vs api", "skin1 green, 2e5 photons", None, "none", cli_s, None, photons=n,
                          api_seconds=api_s, cli_over_api=cli_s / api_s))
     summary["cli seconds / api seconds (2e5 photons, same devices)"] = cli_s / api_s
