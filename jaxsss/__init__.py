@@ -6,41 +6,50 @@ channel axis. See ``docs/architecture.md``.
 
 from jaxsss import _config  # noqa: F401  (enables float64 and the compilation cache before anything else)
 from jaxsss._config import compilation_cache_dir, enable_compilation_cache
-from jaxsss.data import MATERIAL_TABLES, MeasuredMaterial, list_materials, material, material_medium
-from jaxsss.fresnel import F_DR_METHODS, A_coefficient, F_dr, F_dr_exact, F_dr_poly, F_dt, fresnel_reflectance
-from jaxsss.medium import Medium
-from jaxsss.profiles import (
-    attenuated_dipole_profile,
-    attenuation_kernel,
-    blend_profiles,
-    blend_weights,
-    blended_exitance,
-    dipole_depths,
-    dipole_exitance,
-    dipole_profile,
-    multipole_depths,
-    multipole_exitance,
-    multipole_n_pairs,
-    multipole_profile,
-    multipole_totals,
-    oblique_profile,
-    oblique_profile_sampled,
-    oblique_total,
-    quadpole_exitance,
-    quadpole_profile,
-    quadpole_sources,
-)
-from jaxsss.reflectance import (
-    RdInversion,
-    alpha_prime_from_rd,
-    invert_rd,
-    medium_total_diffuse_reflectance,
-    total_diffuse_reflectance,
-)
-from jaxsss.reparam import Reparameterisation, from_rd_ld, to_rd_ld
-from jaxsss.serialize import json_ready
 
-from jaxsss import mc  # noqa: E402  (Monte Carlo transport reference: jaxsss.mc.simulate, Stack, Layer, MCResult)
+# Lazy attributes (PEP 562): ``import jaxsss`` (and ``jaxsss mc``, which needs none of these) does not pay for
+# optimistix and the diffusion models until a name is used; ``from jaxsss import X`` works as before.
+_LAZY = {
+    "MATERIAL_TABLES": "jaxsss.data", "MeasuredMaterial": "jaxsss.data", "list_materials": "jaxsss.data",
+    "material": "jaxsss.data", "material_medium": "jaxsss.data",
+    "A_coefficient": "jaxsss.fresnel", "F_DR_METHODS": "jaxsss.fresnel", "F_dr": "jaxsss.fresnel",
+    "F_dr_exact": "jaxsss.fresnel", "F_dr_poly": "jaxsss.fresnel", "F_dt": "jaxsss.fresnel",
+    "fresnel_reflectance": "jaxsss.fresnel",
+    "Medium": "jaxsss.medium",
+    "attenuated_dipole_profile": "jaxsss.profiles", "attenuation_kernel": "jaxsss.profiles",
+    "blend_profiles": "jaxsss.profiles", "blend_weights": "jaxsss.profiles", "blended_exitance": "jaxsss.profiles",
+    "dipole_depths": "jaxsss.profiles", "dipole_exitance": "jaxsss.profiles", "dipole_profile": "jaxsss.profiles",
+    "multipole_depths": "jaxsss.profiles", "multipole_exitance": "jaxsss.profiles",
+    "multipole_n_pairs": "jaxsss.profiles", "multipole_profile": "jaxsss.profiles",
+    "multipole_totals": "jaxsss.profiles", "oblique_profile": "jaxsss.profiles",
+    "oblique_profile_sampled": "jaxsss.profiles", "oblique_total": "jaxsss.profiles",
+    "quadpole_exitance": "jaxsss.profiles", "quadpole_profile": "jaxsss.profiles",
+    "quadpole_sources": "jaxsss.profiles",
+    "RdInversion": "jaxsss.reflectance", "alpha_prime_from_rd": "jaxsss.reflectance",
+    "invert_rd": "jaxsss.reflectance", "medium_total_diffuse_reflectance": "jaxsss.reflectance",
+    "total_diffuse_reflectance": "jaxsss.reflectance",
+    "Reparameterisation": "jaxsss.reparam", "from_rd_ld": "jaxsss.reparam", "to_rd_ld": "jaxsss.reparam",
+    "json_ready": "jaxsss.serialize",
+}
+
+
+def __getattr__(name: str):
+    import importlib
+    import importlib.util
+
+    if name in _LAZY:
+        value = getattr(importlib.import_module(_LAZY[name]), name)
+    elif not name.startswith("_") and importlib.util.find_spec(f"jaxsss.{name}") is not None:
+        value = importlib.import_module(f"jaxsss.{name}")  # a submodule, e.g. jaxsss.mc (Monte Carlo transport)
+    else:
+        raise AttributeError(f"module 'jaxsss' has no attribute {name!r}")
+    globals()[name] = value
+    return value
+
+
+def __dir__():
+    return sorted(set(globals()) | set(_LAZY) | {"mc"})
+
 
 __version__ = "0.1.0"
 

@@ -23,9 +23,16 @@ Prints the totals per incident photon: R_specular (first-surface reflection), R_
 lit face), T (everything leaving the far face, unscattered light included; T_unscattered also shown), A (absorbed),
 each with a standard error from per-photon second moments. --json prints one object with the keys R_specular,
 R_diffuse, R_diffuse_stderr, T, T_stderr, T_unscattered, A, A_stderr, R_single, R_multiple, mean_exit_radius,
-step_cap_hits, photons, seed, seconds (and r_mm, R, R_stderr, T, T_stderr profiles when -o is not used but --r-max
-is). -o FILE.csv writes the radial profile on --r-bins equal bins of [0, --r-max] mm: columns r_mm (bin centre),
-R, R_stderr (and T, T_stderr for a slab), per incident photon per mm^2, with a '#' header of the parameters."""
+step_cap_hits, photons, seed, seconds, compile_seconds (included in seconds), devices (and r_mm, R, R_stderr, T,
+T_stderr profiles when -o is not used but --r-max is). -o FILE.csv writes the radial profile on --r-bins equal bins
+of [0, --r-max] mm: columns r_mm (bin centre), R, R_stderr (and T, T_stderr for a slab), per incident photon
+per mm^2, with a '#' header of the parameters.
+
+The photons are split over one JAX device per usable core (--devices N to choose, or JAX_NUM_CPU_DEVICES=N in the
+environment; on a GPU machine, the GPUs): each device runs its share with its own random stream, so a result is
+reproducible for a given seed and device count, and results for different counts agree within their standard
+errors. Compiled programs are cached on disk
+(~/.cache/jaxsss/jax; JAXSSS_COMPILATION_CACHE=DIR or off), so only the first run of a kind compiles."""
 
 
 def add_parser(subparsers) -> argparse.ArgumentParser:
@@ -50,6 +57,9 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
                    "it). Standard errors then come from 16 batch means; needs --r-max and >= 8 photons")
     p.add_argument("-o", "--output", metavar="FILE.csv", help="write the radial profile R(r) (and T(r)) to a CSV")
     p.add_argument("--json", action="store_true", help="print one JSON object instead of a table")
+    p.add_argument("--devices", type=int, metavar="N",
+                   help="split the photons over N JAX devices, >= 1 (default: one CPU device per usable core, or "
+                   "every GPU). Results are reproducible for a given N and agree in distribution across N")
     p.add_argument("--no-progress", action="store_true", help="no progress bar (it shows only on a terminal)")
     p.set_defaults(run=run)
     return p
@@ -91,7 +101,26 @@ def _write_csv(path, res, slab: bool, args) -> Path:
     return path
 
 
+def _devices(args) -> int | None:
+    """Ask JAX for ``--devices`` CPU devices, or by default one per usable core unless the user already chose a
+    number (``JAX_NUM_CPU_DEVICES``), before its backend starts; the count to pass to ``simulate``."""
+    import jax
+
+    from jaxsss.mc.engine import usable_cores, use_cpu_devices
+
+    if args.devices is not None and args.devices < 1:
+        raise CLIError(f"--devices={args.devices} is outside the allowed range [1, inf)")
+    if args.devices is None and jax.config.jax_num_cpu_devices >= 0:
+        return None  # the user's (or the test suite's) JAX_NUM_CPU_DEVICES
+    try:
+        use_cpu_devices(args.devices or usable_cores())
+    except ValueError:  # JAX already runs (the CLI called in-process): use the devices it has
+        pass
+    return args.devices
+
+
 def run(args) -> int:
+    devices = _devices(args)
     from jaxsss.mc import Stack, simulate
 
     if args.photons < 1:
@@ -116,7 +145,7 @@ def run(args) -> int:
         split = {"split_length": args.split_length, "split_start": min(args.split_length, 0.5 * args.r_max),
                  "split_stop": args.r_max}
     res = simulate(stack, args.photons, seed=args.seed, angle_deg=args.angle, r_edges=r_edges,
-                   progress=False if args.no_progress else None, **split)
+                   progress=False if args.no_progress else None, devices=devices, **split)
     totals = {
         "R_specular": res.R_specular, "R_diffuse": res.R_diffuse, "R_diffuse_stderr": res.R_diffuse_stderr,
         "T": res.T, "T_stderr": res.T_stderr, "T_unscattered": res.T_unscattered, "A": res.A,
@@ -129,7 +158,7 @@ def run(args) -> int:
     if args.json:
         obj = {k: float(v) for k, v in totals.items()}
         obj.update(mean_exit_radius=mean_r, step_cap_hits=res.step_cap_hits, photons=res.photons, seed=res.seed,
-                   seconds=res.seconds)
+                   seconds=res.seconds, compile_seconds=res.compile_seconds, devices=res.devices)
         if r_edges is not None and not args.output:
             obj.update(r_mm=res.r_centres.tolist(), R=res.R_r.tolist(), R_stderr=res.R_r_stderr.tolist())
             if slab:
@@ -138,7 +167,8 @@ def run(args) -> int:
         return 0
     geometry = f"slab {args.thickness:g} mm" if slab else "half-space"
     print(f"jaxsss mc: {geometry}, sigma_a={args.sigma_a:g}/mm, sigma_s={args.sigma_s:g}/mm, g={args.g:g}, "
-          f"eta={args.eta:g}, angle={args.angle:g} deg; {res.photons} photons, seed {res.seed}, {res.seconds:.2f} s")
+          f"eta={args.eta:g}, angle={args.angle:g} deg; {res.photons} photons, seed {res.seed}, {res.seconds:.2f} s on "
+          f"{res.devices} device{'s' if res.devices > 1 else ''}")
     rows = [
         ["R_specular", fmt(res.R_specular), ""],
         ["R_diffuse", fmt(res.R_diffuse), fmt(res.R_diffuse_stderr, 2)],

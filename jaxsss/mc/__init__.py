@@ -3,6 +3,7 @@
 - :class:`Layer`, :class:`Stack` -- the medium (1/mm, mm, absolute indices; :meth:`Stack.half_space`,
   :meth:`Stack.slab`);
 - :func:`simulate` -- run photons, return an :class:`MCResult` (totals, profiles, histograms, standard errors);
+  the photons are split over ``jax.devices()`` (:func:`use_cpu_devices` asks JAX for one CPU device per core);
 - :func:`simulate_edge` -- a pencil beam near a right-angled edge (quarter-space), for the quadpole
   (:mod:`jaxsss.mc.edge`, :class:`EdgeResult`);
 - :func:`white_mc_profile` -- the white ("scaled") Monte Carlo radial profile, transport-accurate and differentiable,
@@ -10,7 +11,7 @@
 """
 
 from jaxsss.mc.edge import EdgeResult, simulate_edge
-from jaxsss.mc.engine import simulate
+from jaxsss.mc.engine import simulate, use_cpu_devices
 from jaxsss.mc.result import MCResult
 from jaxsss.mc.stack import Layer, Stack
 from jaxsss.mc.white import (
@@ -32,6 +33,7 @@ __all__ = [
     "load_white_table",
     "simulate",
     "simulate_edge",
+    "use_cpu_devices",
     "white_mc_medium_profile",
     "white_mc_profile",
     "white_mc_profile_stderr",

@@ -27,7 +27,10 @@ correlated, so :func:`jaxsss.mc.simulate` forms standard errors from independent
 moments.
 
 Tallies are scatter-adds (``.at[index].add(..., mode="drop")``; lanes that do not contribute get an index one past
-the end, which is dropped). Every per-photon tally also accumulates the square of the photon's contribution, so the
+the end, which is dropped). They are deferred by one iteration (:func:`_tally`): each event stores its outcome in
+the lane (an exit class, roulette or step-cap death, the weight absorbed), and the next iteration, or the end of the
+loop, adds it up from the carried values. This halves the time per event on CPU: tallied in place, XLA fused the
+event's whole computation into every reduction and recomputed it there. Every per-photon tally also accumulates the square of the photon's contribution, so the
 host can form standard errors from per-photon second moments (each photon exits at most once, so the sum of squares
 of the exit weights *is* the sum of squared per-photon contributions; absorption is accumulated per photon in the
 lane and squared when the photon dies).
@@ -236,6 +239,64 @@ def _take_copies(st: dict, dead):
     return st, dead & ~take
 
 
+CODE_NONE = 2 * N_ORDER  # no exit and no death at the last event (codes 0 .. 2 N_ORDER - 1 are exits)
+CODE_ROULETTE = 2 * N_ORDER + 1
+CODE_CAP = 2 * N_ORDER + 2
+
+
+def _tally(cfg: KernelConfig, params: dict, tal: dict, st: dict) -> dict:
+    """Add the outcome of each lane's last event (``st["code"]``, ``st["dw"]``, ``st["d_roulette"]`` and the
+    position, weight and pathlength it left in ``st``) to the tallies.
+
+    Deferred by one iteration on purpose: the loop body's outputs are materialised in the carry, so these reductions
+    read stored lane values. Tallying inside the event, XLA's CPU fusion copied the event's whole computation (random
+    numbers, Fresnel, spin) into every reduction and into the ``(lanes, 6)`` one-hot of the exit classes, which cost
+    ~40% of the run time (docs/benchmarks.md, "Monte Carlo throughput").
+    """
+    L = cfg.num_layers
+    f64 = jnp.float64
+    code, w, x, y, dw = st["code"], st["w"], st["x"], st["y"], st["dw"]
+    exited = code < 2 * N_ORDER
+    exit_top = code < N_ORDER
+    died = exited | (code == CODE_ROULETTE) | (code == CODE_CAP)
+    capped = code == CODE_CAP
+    tal = dict(tal)
+    w_exit = jnp.where(exited, w, 0.0)
+    moments = jnp.stack([w_exit, w_exit * w_exit], axis=1)
+    # Exits by (side, order class): a scatter-add into 6 rows (non-exits go to the dropped row 6).
+    tal["exit"] = tal["exit"] + jnp.zeros((2 * N_ORDER, 2), f64).at[code].add(moments, mode="drop").reshape(
+        2, N_ORDER, 2)
+    if L == 1:
+        tal["absorbed"] = tal["absorbed"] + jnp.sum(dw)
+    else:
+        tal["absorbed"] = tal["absorbed"] + jnp.zeros((L,), f64).at[st["layer"]].add(dw)
+    tal["absorbed_sq"] = tal["absorbed_sq"] + jnp.sum(jnp.where(died, st["absorbed"] * st["absorbed"], 0.0))
+    tal["roulette"] = tal["roulette"] + jnp.sum(st["d_roulette"])
+    tal["cap_hits"] = tal["cap_hits"] + jnp.sum(capped.astype(jnp.int64))
+    tal["cap_weight"] = tal["cap_weight"] + jnp.sum(jnp.where(capped, w, 0.0))
+    r = jnp.sqrt(x * x + y * y)
+    wr = jnp.where(exit_top, w * r, 0.0)
+    tal["exit_radius"] = tal["exit_radius"] + jnp.stack(
+        [jnp.sum(wr), jnp.sum(wr * wr), jnp.sum(jnp.where(exit_top, w * w * r, 0.0))])
+    if cfg.n_r:
+        ir, in_r = _bin(params["r_edges"], r)
+        # code = side * N_ORDER + order class for exits
+        idx = jnp.where(exited & in_r, code * cfg.n_r + ir, 2 * N_ORDER * cfg.n_r)
+        tal["profile"] = tal["profile"].at[idx].add(moments, mode="drop")
+        if cfg.n_path:
+            ip, in_p = _bin(params["path_edges"], st["path"])
+            idx = jnp.where(exit_top & in_r & in_p, ir * cfg.n_path + ip, cfg.n_r * cfg.n_path)
+            tal["r_path"] = tal["r_path"].at[idx].add(moments, mode="drop")
+    if cfg.n_x:
+        ix, in_x = _bin(params["x_edges"], x)
+        iy, in_y = _bin(params["y_edges"], y)
+        # Split by scattering order like the radial profile (photon-diffusion tests need the multiple part).
+        n_xy = cfg.n_x * cfg.n_y
+        idx = jnp.where(exit_top & in_x & in_y, code * n_xy + ix * cfg.n_y + iy, N_ORDER * n_xy)
+        tal["xy"] = tal["xy"].at[idx].add(moments, mode="drop")
+    return tal
+
+
 def batch_kernel(cfg: KernelConfig, params: dict, key, budget):
     """Run one batch of ``budget`` photons; return the batch's tallies (see :func:`new_tallies`).
 
@@ -262,6 +323,9 @@ def batch_kernel(cfg: KernelConfig, params: dict, key, budget):
         "layer": izeros, "order": izeros, "steps": izeros,
         "alive": jnp.zeros((lanes,), bool),
         "rng": jax.random.bits(key, (lanes,), jnp.uint64),
+        # The last event's outcome, tallied at the start of the next iteration (see _tally): CODE_NONE, an exit
+        # class side * N_ORDER + order class, CODE_ROULETTE or CODE_CAP; and the weight absorbed / removed by roulette.
+        "code": jnp.full((lanes,), CODE_NONE, jnp.int32), "dw": zeros, "d_roulette": zeros,
     }
     if cfg.split_pool:
         # Shared pool of waiting copies (float and int fields); rows [0, pool_n) are in use.
@@ -276,6 +340,7 @@ def batch_kernel(cfg: KernelConfig, params: dict, key, budget):
 
     def body(carry):
         st, tal, launched = carry
+        tal = _tally(cfg, params, tal, st)
         st = dict(st)
         # --- Photon regeneration: dead lanes take new photons while the budget lasts (MCML manual 3.2: launch).
         dead = ~st["alive"]
@@ -350,62 +415,28 @@ def batch_kernel(cfg: KernelConfig, params: dict, key, budget):
         low = interact & (w < threshold)
         w_new = jnp.where(low, jnp.where(u_c < cfg.roulette_chance, w / cfg.roulette_chance, 0.0), w)
         roulette_dead = low & (w_new == 0.0)
-        roulette = jnp.sum(jnp.where(low, w - w_new, 0.0))
-        w = w_new
+        w_before_roulette, w = w, w_new
 
         steps = st["steps"] + 1
         exited = exit_top | exit_bot
         capped = alive & ~exited & ~roulette_dead & (steps >= cfg.max_steps)
         died = alive & (exited | roulette_dead | capped)
 
-        # --- Tallies.
-        tal = dict(tal)
+        # --- Outcome of the event, tallied at the start of the next iteration (_tally).
         cls = jnp.minimum(order, N_ORDER - 1)
-        side = jnp.where(exit_top, 0, 1).astype(jnp.int32)
-        combo = side * N_ORDER + cls  # 0..5
-        onehot = (combo[:, None] == jnp.arange(2 * N_ORDER, dtype=jnp.int32)[None, :]) & exited[:, None]
-        w_exit = jnp.where(exited, w, 0.0)
-        moments = jnp.stack([w_exit, w_exit * w_exit], axis=1)
-        tal["exit"] = tal["exit"] + jnp.einsum("lk,lm->km", onehot.astype(f64), moments).reshape(2, N_ORDER, 2)
-        if L == 1:
-            tal["absorbed"] = tal["absorbed"] + jnp.sum(dw)
-        else:
-            tal["absorbed"] = tal["absorbed"] + jnp.sum(
-                jnp.where(layer[:, None] == jnp.arange(L, dtype=jnp.int32)[None, :], dw[:, None], 0.0), axis=0)
-        tal["absorbed_sq"] = tal["absorbed_sq"] + jnp.sum(jnp.where(died, absorbed * absorbed, 0.0))
-        tal["roulette"] = tal["roulette"] + roulette
-        tal["cap_hits"] = tal["cap_hits"] + jnp.sum(capped.astype(jnp.int64))
-        tal["cap_weight"] = tal["cap_weight"] + jnp.sum(jnp.where(capped, w, 0.0))
-        tal["events"] = tal["events"] + jnp.sum(alive.astype(jnp.int64))
-        tal["iterations"] = tal["iterations"] + 1
-        r = jnp.sqrt(x * x + y * y)
-        wr = jnp.where(exit_top, w * r, 0.0)
-        tal["exit_radius"] = tal["exit_radius"] + jnp.stack(
-            [jnp.sum(wr), jnp.sum(wr * wr), jnp.sum(jnp.where(exit_top, w * w * r, 0.0))])
-        if cfg.n_r:
-            ir, in_r = _bin(params["r_edges"], r)
-            idx = jnp.where(exited & in_r, combo * cfg.n_r + ir, 2 * N_ORDER * cfg.n_r)
-            tal["profile"] = tal["profile"].at[idx].add(moments, mode="drop")
-            if cfg.n_path:
-                ip, in_p = _bin(params["path_edges"], path)
-                idx = jnp.where(exit_top & in_r & in_p, ir * cfg.n_path + ip, cfg.n_r * cfg.n_path)
-                tal["r_path"] = tal["r_path"].at[idx].add(moments, mode="drop")
-        if cfg.n_x:
-            ix, in_x = _bin(params["x_edges"], x)
-            iy, in_y = _bin(params["y_edges"], y)
-            # Split by scattering order like the radial profile (photon-diffusion tests need the multiple part).
-            n_xy = cfg.n_x * cfg.n_y
-            idx = jnp.where(exit_top & in_x & in_y, cls * n_xy + ix * cfg.n_y + iy, N_ORDER * n_xy)
-            tal["xy"] = tal["xy"].at[idx].add(moments, mode="drop")
+        code = jnp.where(exited, jnp.where(exit_top, 0, N_ORDER) + cls,
+                         jnp.where(roulette_dead, CODE_ROULETTE, jnp.where(capped, CODE_CAP, CODE_NONE)))
+        tal = dict(tal, events=tal["events"] + jnp.sum(alive.astype(jnp.int64)), iterations=tal["iterations"] + 1)
 
         new = {
             "x": x, "y": y, "z": z, "ux": ux, "uy": uy, "uz": uz, "w": w, "s": s, "path": path,
             "absorbed": absorbed, "layer": jnp.where(inner, nl, layer), "order": order, "steps": steps,
-            "alive": alive & ~died, "rng": rng,
+            "alive": alive & ~died, "rng": rng, "code": code.astype(jnp.int32), "dw": dw,
+            "d_roulette": jnp.where(low, w_before_roulette - w, 0.0),
         }
         if cfg.split_pool:
-            new = _split(cfg, params, st, new, r)
+            new = _split(cfg, params, st, new, jnp.sqrt(x * x + y * y))
         return new, tal, launched
 
-    _, tallies, _ = lax.while_loop(cond, body, (state, new_tallies(cfg), jnp.zeros((), jnp.int64)))
-    return tallies
+    final, tallies, _ = lax.while_loop(cond, body, (state, new_tallies(cfg), jnp.zeros((), jnp.int64)))
+    return _tally(cfg, params, tallies, final)  # the last iteration's outcomes

@@ -64,7 +64,8 @@ class MCResult:
     compile_seconds (0 when the kernel was already compiled), events (lane events of live photons: interactions +
     interface hits), batches, lanes, batch_size, max_steps; stderr_method (``"photons"``: per-photon second
     moments; ``"batches"``: the spread of independent batch means, used with radial splitting), split_length,
-    split_start and split_stop (mm; None, 0 and None without splitting).
+    split_start and split_stop (mm; None, 0 and None without splitting); devices (the number of devices the photons
+    were split over); iterations (loop iterations, summed over batches and devices; see ``lane_occupancy``).
     """
 
     photons: int
@@ -116,6 +117,8 @@ class MCResult:
     split_length: float | None = None
     split_start: float = 0.0
     split_stop: float | None = None
+    devices: int = 1
+    iterations: int = 0
 
     # --- Views -----------------------------------------------------------------------------------------------------
     @property
@@ -161,6 +164,12 @@ class MCResult:
     def annulus_areas(self) -> np.ndarray | None:
         """``pi (r_{i+1}^2 - r_i^2)`` (mm^2)."""
         return None if self.r_edges is None else np.pi * np.diff(self.r_edges**2)
+
+    @property
+    def lane_occupancy(self) -> float:
+        """Fraction of lane slots that advanced a live photon: ``events / (iterations * lanes)`` (iterations summed
+        over devices); below 1 by the batches' tails, where only the longest walks still run."""
+        return self.events / (self.iterations * self.lanes) if self.iterations else float("nan")
 
     @property
     def photons_per_second(self) -> float:

@@ -16,7 +16,8 @@ def test_json_has_the_documented_keys_and_matches_the_engine(capsys):
     assert JSON_KEYS <= set(got)
     ref = simulate(Stack.slab(0.1, 0.9, 0.75, 1.0, 2.0), 3000, seed=4)
     assert got["R_diffuse"] == ref.R_diffuse and got["T"] == ref.T and got["A"] == ref.A
-    assert got["photons"] == 3000 and got["seconds"] > 0
+    assert got["photons"] == 3000 and got["seconds"] >= got["compile_seconds"] >= 0
+    assert got["devices"] == 1  # in-process: the devices the test's JAX already has
     # van de Hulst (MCML manual Table 6.1), 3 standard errors + 1e-3.
     assert abs(got["R_diffuse"] - 0.09739) <= 3 * got["R_diffuse_stderr"] + 1e-3
     assert abs(got["T"] - 0.66096) <= 3 * got["T_stderr"] + 1e-3
@@ -105,6 +106,8 @@ def test_help_states_units(capsys):
         (["--sigma-a", 0.1, "--sigma-s", 1, "--photons", 10, "--split-length", 2], "needs --r-max"),
         (["--sigma-a", 0.1, "--sigma-s", 1, "--photons", 10, "--r-max", 5, "--split-length", 0], "--split-length=0"),
         (["--sigma-a", 0.1, "--sigma-s", 1, "--photons", 4, "--r-max", 5, "--split-length", 2], "[8, inf)"),
+        (["--sigma-a", 0.1, "--sigma-s", 1, "--photons", 10, "--devices", 0], "--devices=0"),
+        (["--sigma-a", 0.1, "--sigma-s", 1, "--photons", 10, "--devices", 99], "devices=99"),
     ],
 )
 def test_user_errors_give_one_line_and_exit_2(capsys, argv, fragment):
