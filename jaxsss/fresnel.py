@@ -42,6 +42,7 @@ __all__ = [
     "F_dr_exact",
     "F_dr_poly",
     "F_dt",
+    "fresnel_cosines",
     "fresnel_reflectance",
     "fresnel_unpolarised",
     "refract",
@@ -71,19 +72,24 @@ def refract(d, normal, cos_i, cos_t, rel, *, xp=jnp):
     return d / rel + xp.expand_dims(cos_i / rel - cos_t, -1) * normal
 
 
+def fresnel_cosines(cos_i, cos_t, rel):
+    """Unpolarised Fresnel reflectance from the incidence and refraction cosines (``cos_t`` from
+    :func:`snell_cosine`) at relative index ``rel = n_t / n_i``; any array namespace. The Fresnel equations only:
+    callers handle total internal reflection (:func:`fresnel_unpolarised` does)."""
+    # Fresnel equations, s and p amplitudes.
+    r_s = (cos_i - rel * cos_t) / (cos_i + rel * cos_t)
+    r_p = (rel * cos_i - cos_t) / (rel * cos_i + cos_t)
+    return 0.5 * (r_s * r_s + r_p * r_p)
+
+
 def fresnel_unpolarised(cos_i, rel, *, xp=jnp):
     """Unpolarised Fresnel reflectance for incidence cosine ``cos_i`` in ``[0, 1]`` onto a medium of relative index
     ``rel = n_t / n_i``, unchecked (the kernel of :func:`fresnel_reflectance`, for callers that validated their
     input; ``xp = numpy`` outside JAX). Total internal reflection and grazing incidence give 1."""
-    sin2_t = (1.0 - cos_i * cos_i) / (rel * rel)
-    tir = sin2_t >= 1.0
-    # Snell's law; the safe sqrt keeps gradients finite on the TIR branch.
-    cos_t = xp.sqrt(xp.where(tir, 0.5, 1.0 - sin2_t))
-    # Fresnel equations, s and p amplitudes.
-    r_s = (cos_i - rel * cos_t) / (cos_i + rel * cos_t)
-    r_p = (rel * cos_i - cos_t) / (rel * cos_i + cos_t)
-    F = 0.5 * (r_s * r_s + r_p * r_p)
-    return xp.where(tir, xp.ones_like(F), F)
+    # Snell's law; its double where keeps gradients finite on the TIR branch.
+    cos_t, ok = snell_cosine(cos_i, rel, xp=xp)
+    F = fresnel_cosines(cos_i, cos_t, rel)
+    return xp.where(ok, F, xp.ones_like(F))
 
 
 def fresnel_reflectance(eta, cos_theta, *, from_inside: bool = False):

@@ -46,6 +46,7 @@ import jax.numpy as jnp
 from jax import lax
 
 from jaxsss import _config  # noqa: F401  (float64)
+from jaxsss.fresnel import fresnel_cosines, snell_cosine
 
 __all__ = ["KernelConfig", "batch_kernel", "new_tallies"]
 
@@ -116,19 +117,14 @@ def new_tallies(cfg: KernelConfig) -> dict:
 
 def _fresnel(cos_i, rel, xp=jnp):
     """Unpolarised Fresnel reflectance and refraction cosine for incidence cosine ``cos_i`` onto relative index
-    ``rel = n_t / n_i`` (total internal reflection gives ``R = 1``). Same formula as
-    :func:`jaxsss.fresnel.fresnel_reflectance`; also returns ``cos_t``, which the engine needs. ``xp``: the array
-    namespace (``numpy`` for the mesh photon tracer, which runs outside JAX)."""
-    sin2_t = (1.0 - cos_i * cos_i) / (rel * rel)
-    tir = sin2_t >= 1.0
-    cos_t = xp.sqrt(xp.where(tir, 0.0, 1.0 - sin2_t))
+    ``rel = n_t / n_i`` (total internal reflection gives ``R = 1``), from the physics core's Snell's law and Fresnel
+    equations (:mod:`jaxsss.fresnel`), with the walk's exact cases: a matched interface passes straight through and
+    grazing incidence reflects. ``xp``: the array namespace."""
+    cos_t, ok = snell_cosine(cos_i, rel, xp=xp)
     cos_t = xp.where(rel == 1.0, cos_i, cos_t)  # exact pass-through at matched interfaces
-    r_s = (cos_i - rel * cos_t) / (cos_i + rel * cos_t)
-    r_p = (rel * cos_i - cos_t) / (rel * cos_i + cos_t)
-    F = 0.5 * (r_s * r_s + r_p * r_p)
-    F = xp.where(rel == 1.0, 0.0, F)
+    F = xp.where(rel == 1.0, 0.0, fresnel_cosines(cos_i, cos_t, rel))
     F = xp.where(cos_i <= 0.0, 1.0, F)  # grazing: nothing crosses (and no 0/0)
-    return xp.where(tir, 1.0, F), cos_t
+    return xp.where(ok, F, 1.0), cos_t
 
 
 def _hg_cos(g, u):

@@ -33,11 +33,11 @@ from jaxsss.medium import Medium
 from jaxsss.photon.emit import emit_photons
 from jaxsss.photon.trace import PhotonTrace, trace_photons
 from jaxsss.photon.tree import PairLists, SourceTree, pair_lists, source_tree
-# The unchecked kernels of the profiles package (its owner is asked to make them public: issue 16's report). The public
+# The unchecked kernels of the profiles package (their arguments are validated once, in prepare). The public
 # blended_exitance and attenuation_kernel validate every argument with equinox.error_if, which inside this sum's scan
 # raised spuriously during Levenberg-Marquardt fits (fit_image(method="photon")) and costs time in the inner loop.
-from jaxsss.profiles.blend import _blended
-from jaxsss.profiles.oblique import KAPPA_COEFFICIENTS, _kappa
+from jaxsss.profiles.blend import blended_unchecked
+from jaxsss.profiles.oblique import KAPPA_COEFFICIENTS, kappa_unchecked
 from jaxsss.profiles.point_sources import DEFAULT_N_PAIRS
 from jaxsss.render import radiance as rad
 from jaxsss.render.methods import Preparation, register_method
@@ -108,9 +108,9 @@ class PhotonPrepared(ShadedPoints):
                 h = jnp.sum((x - src) * n, axis=-1, keepdims=True)
                 src = src + jnp.minimum(h, 0.0) * n
                 # Eq. 15 (blend of dipole, quadpole, multipole) times Eq. 9 (kappa), per unit source power.
-                prof = _blended(x, n, src, self.ent_normal[e], self.ent_depth[e], medium, n_pairs)
+                prof = blended_unchecked(x, n, src, self.ent_normal[e], self.ent_depth[e], medium, n_pairs)
                 d_r = jnp.sqrt(jnp.sum((x - src) ** 2, axis=-1, keepdims=True))
-                return prof * _kappa(coeff, d_r, medium) * ent_power[e]
+                return prof * kappa_unchecked(coeff, d_r, medium) * ent_power[e]
 
             out = out + rad.scan_pairs(contrib, self.n_queries, ent_power.shape[-1:], ent_power.dtype, pq, pe)
         if isinstance(out, float):

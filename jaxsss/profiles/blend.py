@@ -44,7 +44,7 @@ from jaxsss.profiles._sources import point_source_exitance
 from jaxsss.profiles.multipole import _check_n_pairs
 from jaxsss.profiles.point_sources import DEFAULT_N_PAIRS, _multipole_sum, safe_sqrt
 
-__all__ = ["blend_profiles", "blend_weights", "blended_exitance"]
+__all__ = ["blend_profiles", "blend_weights", "blended_exitance", "blended_unchecked"]
 
 
 def blend_weights(gamma):
@@ -110,11 +110,14 @@ def blended_exitance(x_o, n_o, source, source_normal, source_depth, medium: Medi
     n_o = _unit(n_o, "n_o", owner)
     n_i = _unit(source_normal, "source_normal", owner)
     ell = check_range(source_depth, "source_depth", 0.0, None, owner=owner)
-    return _blended(x_o, n_o, source, n_i, ell, medium, n)
+    return blended_unchecked(x_o, n_o, source, n_i, ell, medium, n)
 
 
 @eqx.filter_jit
-def _blended(x_o, n_o, source, n_i, ell, medium, n_pairs):
+def blended_unchecked(x_o, n_o, source, n_i, ell, medium, n_pairs):
+    """The kernel of :func:`blended_exitance` without its argument checks, for callers that validated their input
+    once (the photon renderer's inner loop, where a per-call check costs time and must not run inside a fit's
+    solver). Same arguments (``n_pairs`` a static int) and units."""
     v = source - x_o
     # Geometry in the view plane (batch shape B), then a trailing axis per medium dimension.
     h = -jnp.sum(v * n_o, axis=-1)

@@ -60,6 +60,7 @@ __all__ = [
     "KAPPA_COEFFICIENTS",
     "attenuated_dipole_profile",
     "attenuation_kernel",
+    "kappa_unchecked",
     "beam_integral",
     "oblique_profile",
     "oblique_profile_sampled",
@@ -96,10 +97,12 @@ def attenuation_kernel(d_r, medium: Medium, kappa: str = DEFAULT_KAPPA):
     """
     coeff = _resolve_kappa(kappa, "attenuation_kernel")
     d_r = check_range(d_r, "d_r", 0.0, None, owner="attenuation_kernel")
-    return _kappa(coeff, d_r, medium)
+    return kappa_unchecked(coeff, d_r, medium)
 
 
-def _kappa(coeff, d_r, medium):
+def kappa_unchecked(coeff, d_r, medium):
+    """Eq. 9 without checks: ``coeff`` is a value of :data:`KAPPA_COEFFICIENTS` (a function of the medium, or None
+    for no attenuation), ``d_r`` in mm, already validated (the kernel of :func:`attenuation_kernel`)."""
     if coeff is None:
         return jnp.ones(jnp.broadcast_shapes(jnp.shape(d_r), jnp.shape(medium.sigma_t_prime)), jnp.result_type(d_r))
     # Eq. 9, as -expm1 so that it stays accurate (and its gradient finite) for sigma d_r << 1.
@@ -151,7 +154,7 @@ def _sources_exitance(x, X, Y, sin_t, cos_t, medium, coeff):
     z_v = z_r + 2.0 * medium.z_b
     E = point_source_exitance(z_r, rho, medium.sigma_tr) + point_source_exitance(z_v, rho, medium.sigma_tr)
     # Eq. 9 at d_r, the distance from the real source.
-    return _kappa(coeff, jnp.sqrt(rho2 + z_r * z_r), medium) * E
+    return kappa_unchecked(coeff, jnp.sqrt(rho2 + z_r * z_r), medium) * E
 
 
 @eqx.filter_jit
@@ -222,7 +225,7 @@ def _attenuated_dipole(r, medium, coeff):
     z_v = z_r + 2.0 * medium.z_b
     E = point_source_exitance(z_r, r, medium.sigma_tr) + point_source_exitance(z_v, r, medium.sigma_tr)
     # Eq. 9 at d_r = sqrt(r^2 + z_r^2) times Eq. 6 (alpha' is the source power).
-    return medium.alpha_prime * _kappa(coeff, jnp.sqrt(r * r + z_r * z_r), medium) * E
+    return medium.alpha_prime * kappa_unchecked(coeff, jnp.sqrt(r * r + z_r * z_r), medium) * E
 
 
 def oblique_total(medium: Medium, theta_i=0.0):
