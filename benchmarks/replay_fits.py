@@ -25,7 +25,6 @@ from typing import NamedTuple
 
 import numpy as np
 
-MCML_DIR = Path("/work/shared/reference/mcml")
 
 
 class MCMLCase(NamedTuple):
@@ -44,12 +43,14 @@ class MCMLCase(NamedTuple):
     T_r: np.ndarray
 
 
-def read_mcml_csv(name: str, directory: Path = MCML_DIR) -> MCMLCase:
+def read_mcml_csv(name: str, directory: Path | None = None) -> MCMLCase:
     """Parse ``NAME.csv`` of the shared MCML set (the two header lines give the parameters and MCML's totals).
 
     Only the test and benchmark helper of the replay fits: the fitting layer's ``.mco`` reader is ``fitting.mco``.
     """
-    path = Path(directory) / f"{name}.csv"
+    from benchmarks.mcml_fits import mcml_dir
+
+    path = Path(directory or mcml_dir()) / f"{name}.csv"
     with open(path) as f:
         head, tot = f.readline(), f.readline()
     layers = [dict(n=float(m[1]), mua=float(m[2]), mus=float(m[3]), g=float(m[4]), d=float(m[5]))

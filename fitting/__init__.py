@@ -10,7 +10,8 @@ This package is installed with ``jaxsss`` and imports only its public API (``imp
 - Registries: :data:`FORWARD_MODELS` (``dipole``, ``multipole``; :func:`register_model` adds more) and
   :data:`SOLVERS` (``levenberg_marquardt``, ``gauss_newton``, ``dogleg``).
 - I/O: :func:`read_profile_csv`, :func:`load_profile_npy`, :func:`read_profile` -> :class:`ProfileData`;
-  :func:`read_mco` reads MCML 1.2.2's ``.mco`` output (:class:`McoRun`, in mm; ``read_profile`` dispatches ``.mco``).
+  :func:`read_mco` reads MCML 1.2.2's ``.mco`` output (:class:`McoRun`, in mm; ``read_profile`` dispatches ``.mco``);
+  :func:`fit_mco` fits such a run as it stands (transport-accurate: white MC or replay Monte Carlo).
 
 The Rd -> alpha' inversion and the (Rd, l_d) reparameterisation are closed-form physics and live in
 :mod:`jaxsss.reflectance` and :mod:`jaxsss.reparam`. - :func:`fit_image`: sigma_a and sigma_s' per channel from a rendered image (:class:`ImageFit`).
@@ -20,6 +21,7 @@ import jaxsss  # noqa: F401  (float64 before anything else)
 from fitting.image_fit import ImageFit, fit_image
 from fitting.io import COLUMNS, ProfileData, ProfileFileError, load_profile_npy, read_profile, read_profile_csv
 from fitting.mco import McoLayer, McoRun, read_mco
+from fitting.mco_fit import MCO_MODELS, McoFit, fit_mco
 from fitting.models import FORWARD_MODELS, ForwardModel, entry_transmittance, register_model, resolve_model
 from fitting.replay_fit import ReplayData, ReplayFit, fit_replay, fit_slab_totals
 from fitting.profile_fit import FitWarning, fit_jacobian_wrt_data, fit_profile, fit_profiles
@@ -27,6 +29,8 @@ from fitting.result import CONDITION_LIMIT, CORRELATION_LIMIT, ProfileFit
 from fitting.solvers import SOLVERS, LeastSquaresSolver, resolve_solver
 
 __all__ = [
+    "MCO_MODELS",
+    "McoFit",
     "COLUMNS",
     "CONDITION_LIMIT",
     "CORRELATION_LIMIT",
@@ -48,6 +52,7 @@ __all__ = [
     "fit_jacobian_wrt_data",
     "fit_profile",
     "fit_profiles",
+    "fit_mco",
     "fit_replay",
     "fit_slab_totals",
     "load_profile_npy",

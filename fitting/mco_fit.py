@@ -1,0 +1,198 @@
+"""Fitting an MCML run file (``.mco``) as it stands: the geometry, indices and photon count come from the file.
+
+:func:`fit_mco` is what ``jaxsss fit RUN.mco`` calls. It fits the free layers' ``sigma_a`` and ``sigma_s'`` (default:
+the deepest layer; the others stay at the file's values) to the run's ``Rd_r`` and, for a finite stack, ``Tt_r``:
+
+- ``model="mc"`` (default), transport-accurate:
+  - a half-space whose ``(g, n)`` has a shipped white Monte Carlo table: the white-MC model of
+    :func:`fitting.fit_profile` (one compiled fit, ~0.1 s);
+  - anything else (any other ``(g, n)``, slabs, layered stacks): replay (perturbation) Monte Carlo with a trust
+    region, :func:`fitting.fit_replay` (seconds to minutes: each round simulates the file's geometry).
+- ``model="dipole"`` / ``"multipole"``: the diffusion models (one layer only; multipole for slabs), for comparison.
+
+The replay fit starts from a dipole fit of the same ``Rd_r`` (a data-driven start, never the file's own
+coefficients, which are the answer); the trust region then walks from there. The file's layer coefficients are used
+only for the fixed layers.
+
+Values are listed per free layer, *deepest first* (the CLI's JSON convention).
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from pathlib import Path
+from typing import NamedTuple, Sequence
+
+import numpy as np
+
+from fitting.io import ProfileFileError
+from fitting.mco import McoRun, read_mco
+
+__all__ = ["McoFit", "MCO_MODELS", "fit_mco"]
+
+MCO_MODELS = ("mc", "dipole", "multipole")
+"""Models :func:`fit_mco` accepts."""
+
+START_CLIP = (1e-4, 1e3)
+"""The dipole start is clipped to this range (1/mm) before the replay fit (a diffusion fit of a thin slab can run
+away)."""
+
+
+class McoFit(NamedTuple):
+    """Result of :func:`fit_mco`. Arrays are per free layer, deepest first (1/mm).
+
+    ``method``: ``"white_mc"``, ``"replay"``, ``"dipole"`` or ``"multipole"``; ``free_layers``: indices, top layer 0,
+    in the same order as the values; ``input_sigma_a``/``input_sigma_s_prime``: the run's input coefficients of those
+    layers (MCML's input), for comparison only; ``start``: the replay fit's initial guess (``None`` otherwise);
+    ``simulations``: Monte Carlo runs (0 for the tabulated and diffusion models); ``seconds``: wall time.
+    """
+
+    source: str
+    model: str
+    method: str
+    free_layers: tuple
+    sigma_a: np.ndarray
+    sigma_s_prime: np.ndarray
+    sigma_a_stderr: np.ndarray
+    sigma_s_prime_stderr: np.ndarray
+    converged: bool
+    status: str
+    reduced_chi2: float
+    simulations: int
+    seconds: float
+    input_sigma_a: np.ndarray
+    input_sigma_s_prime: np.ndarray
+    start: tuple | None
+    warnings: tuple
+
+    def to_dict(self) -> dict:
+        """A JSON-ready dict (lists for arrays)."""
+        d = self._asdict()
+        for k, v in d.items():
+            if isinstance(v, np.ndarray):
+                d[k] = v.tolist()
+        d["start"] = None if self.start is None else [list(map(float, s)) for s in self.start]
+        d["warnings"] = list(self.warnings)
+        d["free_layers"] = list(self.free_layers)
+        return d
+
+
+def _free_layers(run: McoRun, free_layers) -> list[int]:
+    L = len(run.layers)
+    out = []
+    for i in (-1,) if free_layers is None else free_layers:
+        if isinstance(i, bool) or not isinstance(i, (int, np.integer)) or not -L <= i < L:
+            raise ValueError(f"fit_mco(free_layers={free_layers!r}): layer index {i!r} is outside the allowed range "
+                             f"[{-L}, {L - 1}] for the {L} layer(s) of {run.source}")
+        out.append(int(i) % L)
+    if not out or len(set(out)) != len(out):
+        raise ValueError(f"fit_mco(free_layers={free_layers!r}) must name distinct layers, at least one")
+    return sorted(out, reverse=True)  # deepest first
+
+
+def _reduced(layer) -> tuple[float, float]:
+    return float(layer.mua), float(layer.mus) * (1.0 - float(layer.g))
+
+
+def _diffusion_fit(run: McoRun, model: str):
+    from fitting.profile_fit import fit_profile
+
+    data = run.to_profile()
+    thickness = None if run.semi_infinite else run.thickness
+    if model == "dipole":  # the dipole sees a half-space: fit R only
+        return fit_profile(data.r, data.R, R_stderr=data.R_stderr, eta=run.eta, model="dipole", warn=False)
+    return fit_profile(data.r, data.R, R_stderr=data.R_stderr, T=data.T, T_stderr=data.T_stderr, eta=run.eta,
+                       model="multipole", thickness=thickness, warn=False)
+
+
+def _stack(run: McoRun, start: dict[int, tuple[float, float]]):
+    from jaxsss.mc import Layer, Stack
+
+    layers = []
+    for i, layer in enumerate(run.layers):
+        g = float(layer.g)
+        sa, ssp = start.get(i, _reduced(layer))
+        thickness = math.inf if layer.semi_infinite else float(layer.thickness)
+        layers.append(Layer(sa, ssp / (1.0 - g), g, float(layer.n), thickness))
+    return Stack(layers, n_above=run.n_above, n_below=run.n_below)
+
+
+def fit_mco(run: McoRun | str | Path, *, model: str = "mc", free_layers: Sequence[int] | None = None,
+            photons: int = 100_000, seed: int = 0, max_simulations: int = 16) -> McoFit:
+    """Fit an MCML run: ``run`` is a :class:`~fitting.mco.McoRun` or a path to an ``.mco`` file.
+
+    Args:
+        model: one of :data:`MCO_MODELS` (module docstring).
+        free_layers: indices of the layers to fit (top layer 0; negative from the bottom); default the deepest. The
+            diffusion models fit one-layer runs only.
+        photons: photons per replay simulation (``model="mc"`` without a table).
+        seed, max_simulations: passed to :func:`fitting.fit_replay`.
+
+    Returns:
+        :class:`McoFit`.
+    """
+    t0 = time.perf_counter()
+    if not isinstance(run, McoRun):
+        run = read_mco(run)
+    if model not in MCO_MODELS:
+        raise ValueError(f"fit_mco(model={model!r}) is not one of: {', '.join(MCO_MODELS)}")
+    free = _free_layers(run, free_layers)
+    truth = np.array([_reduced(run.layers[i]) for i in free])
+    single = len(run.layers) == 1
+    if model != "mc" and not single:
+        raise ProfileFileError(f"{run.source}: the {model} model describes one layer; this run has "
+                               f"{len(run.layers)} (use --model mc)")
+    if model == "multipole" and run.semi_infinite:
+        raise ProfileFileError(f"{run.source}: the multipole model needs a slab; this run is a half-space (use "
+                               "--model dipole or mc)")
+    warnings: list[str] = []
+    common = dict(source=run.source, model=model, free_layers=tuple(free), input_sigma_a=truth[:, 0],
+                  input_sigma_s_prime=truth[:, 1])
+
+    def from_profile_fit(fit, method):
+        warnings.extend(fit.warnings)
+        converged = bool(np.all(fit.converged))
+        return McoFit(method=method, sigma_a=np.atleast_1d(np.asarray(fit.sigma_a, float)),
+                      sigma_s_prime=np.atleast_1d(np.asarray(fit.sigma_s_prime, float)),
+                      sigma_a_stderr=np.atleast_1d(np.asarray(fit.sigma_a_stderr, float)),
+                      sigma_s_prime_stderr=np.atleast_1d(np.asarray(fit.sigma_s_prime_stderr, float)),
+                      converged=converged, status="converged" if converged else "not converged",
+                      reduced_chi2=float(np.max(np.asarray(fit.reduced_chi2))),
+                      simulations=0, seconds=time.perf_counter() - t0, start=None,
+                      warnings=tuple(warnings), **common)
+
+    if model in ("dipole", "multipole"):
+        return from_profile_fit(_diffusion_fit(run, model), model)
+
+    from jaxsss.mc import available_white_tables
+
+    layer = run.layers[-1]
+    if single and run.semi_infinite and (round(float(layer.g), 2), round(run.eta, 2)) in available_white_tables():
+        from fitting.profile_fit import fit_profile
+
+        data = run.to_profile()
+        fit = fit_profile(data.r, data.R, R_stderr=data.R_stderr, eta=run.eta, model="mc", g=float(layer.g),
+                          warn=False)
+        return from_profile_fit(fit, "white_mc")
+
+    from fitting.replay_fit import ReplayData, fit_replay
+
+    # A data-driven start: the dipole fit of R for every free layer, clipped (never the file's own coefficients).
+    dip = _diffusion_fit(run, "dipole")
+    guess = tuple(float(np.clip(np.asarray(v, float).ravel()[0], *START_CLIP)) for v in (dip.sigma_a,
+                                                                                        dip.sigma_s_prime))
+    start = {i: guess for i in free}
+    stack = _stack(run, start)
+    data = ReplayData(r_edges=np.concatenate([run.r_lo, run.r_hi[-1:]]), R_r=run.Rd_r,
+                      T_r=None if run.semi_infinite else run.Tt_r, photons=run.photons)
+    fit = fit_replay(stack, data, free_layers=tuple(free), photons=photons, seed=seed,
+                     max_simulations=max_simulations)
+    order = [fit.free_layers.index(i) for i in free]
+    if not fit.converged:
+        warnings.append(f"the replay fit stopped with status {fit.status!r} after {fit.simulations} simulations")
+    return McoFit(method="replay", sigma_a=fit.sigma_a[order], sigma_s_prime=fit.sigma_s_prime[order],
+                  sigma_a_stderr=fit.sigma_a_stderr[order], sigma_s_prime_stderr=fit.sigma_s_prime_stderr[order],
+                  converged=fit.converged, status=fit.status, reduced_chi2=fit.reduced_chi2,
+                  simulations=fit.simulations, seconds=time.perf_counter() - t0,
+                  start=tuple(start[i] for i in free), warnings=tuple(warnings), **common)
