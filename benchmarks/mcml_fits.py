@@ -172,7 +172,11 @@ def _bias_plot(rows, path: Path):
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    labels = [f"{r['setting']}\n{r['method'].split()[-1]}" for r in rows]
+    def label(r):  # "dipole", "mc" (the tabulated model), or "fit_mco replay|white_mc"
+        method = r["method"].removeprefix("fit_profile ")
+        return f"fit_mco {r.get('route', '')}" if method == "fit_mco mc" else method
+
+    labels = [f"{r['setting']}\n{label(r)}" for r in rows]
     x = np.arange(len(rows))
     fig, ax = plt.subplots(figsize=(max(7.0, 0.55 * len(rows) + 2), 5.2))
     for k, (key, name) in enumerate((("sigma_a_err_pct", "sigma_a"), ("sigma_s_prime_err_pct", "sigma_s'"))):
