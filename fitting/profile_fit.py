@@ -185,7 +185,7 @@ def _order(stage, r, a):
     if stage == "solve":
         return (a[0], a[1], r, *a[2:])
     if stage == "finish":
-        return (*a[:4], r, *a[4:])
+        return (*a[:5], r, *a[5:])
     return (r, *a)
 
 
@@ -201,19 +201,21 @@ def _run(stage, cfg, shard, r, *per_problem):
     """Run a stage over all problems. The problem axis is padded (copies of the last problem, see :func:`_bucket`);
     with several devices (and ``shard``) it is placed with a :class:`jax.sharding.NamedSharding` over a 1-D mesh
     (``r`` replicated) and jit's SPMD partitioner splits the work."""
-    P_ = per_problem[0].shape[0]
+    P_ = jax.tree_util.tree_leaves(per_problem)[0].shape[0]
     mesh = _mesh(P_) if shard in (None, True) else None
     n_dev = 1 if mesh is None else mesh.size
     pad = _bucket(P_, n_dev) - P_
     if pad:
-        per_problem = tuple(jnp.concatenate([x, jnp.repeat(x[-1:], pad, axis=0)]) for x in per_problem)
+        per_problem = jax.tree_util.tree_map(lambda x: jnp.concatenate([x, jnp.repeat(x[-1:], pad, axis=0)]),
+                                             per_problem)
     r = jnp.asarray(r)
     if mesh is not None:
         from jax.sharding import NamedSharding
         from jax.sharding import PartitionSpec as P
 
         r = jax.device_put(r, NamedSharding(mesh, P()))
-        per_problem = tuple(jax.device_put(x, NamedSharding(mesh, P("batch"))) for x in per_problem)
+        per_problem = jax.tree_util.tree_map(lambda x: jax.device_put(x, NamedSharding(mesh, P("batch"))),
+                                             per_problem)
     out = _compiled(stage, cfg)(r, *per_problem)
     if mesh is not None:  # gather to the host (the next stage reshards)
         out = jax.tree_util.tree_map(lambda x: jnp.asarray(np.asarray(x)), out)
@@ -241,7 +243,7 @@ def _compiled_block(cfg: K.Config):
 
 def _solve_slots(cfg, r, theta0, mask, y, se, eta, d):
     """The native LM from every start of every problem, ``theta0 (P, S, p)``, in slot blocks (see :data:`SLOTS`):
-    ``(thetas (P, S, p), results (P, S), steps (P, S))``."""
+    ``(thetas (P, S, p), results (P, S), steps (P, S), stationary (P, S))``."""
     P_, S, p = theta0.shape
     Q = P_ * S
     starts0 = np.asarray(theta0).reshape(Q, p)
@@ -277,8 +279,9 @@ def _solve_slots(cfg, r, theta0, mask, y, se, eta, d):
             nxt += take
         if not np.any(slot_q >= 0):
             break
-    results = K.status_result(jnp.asarray(out_status.reshape(P_, S)))
-    return jnp.asarray(out_theta.reshape(P_, S, p)), results, jnp.asarray(out_steps.reshape(P_, S))
+    status = out_status.reshape(P_, S)
+    return (jnp.asarray(out_theta.reshape(P_, S, p)), K.status_result(status), jnp.asarray(out_steps.reshape(P_, S)),
+            jnp.asarray(status == K._CONVERGED))
 
 
 def _solve(cfg, shard, r, theta0, mask, y, se, eta, d):
@@ -369,7 +372,7 @@ def _fit(owner, batched, r, R, R_stderr, T, T_stderr, *, eta, model, thickness, 
                 need = _prepare_static(model, pb, jnp.exp(start[:, :, 0]).max(1), jnp.exp(start[:, :, 1]).max(1),
                                        eta_p, fresnel, notes)
                 cfg = cfg._replace(static=min(max(2 * need, cfg.static if attempt else 0), model.static_cap))
-            thetas, results, steps = _solve(cfg, shard, pb.r, start, mask, y, se, eta_p, d)
+            thetas, results, steps, stationary = _solve(cfg, shard, pb.r, start, mask, y, se, eta_p, d)
             steps_total = steps_total + steps
             if model.prepare is None:
                 break
@@ -378,7 +381,7 @@ def _fit(owner, batched, r, R, R_stderr, T, T_stderr, *, eta, model, thickness, 
             if need <= cfg.static:
                 break
             start = thetas
-        out = _run("finish", cfg, shard, pb.r, thetas, results, steps_total, mask, y, se, eta_p, d)
+        out = _run("finish", cfg, shard, pb.r, thetas, results, steps_total, stationary, mask, y, se, eta_p, d)
     out = jax.block_until_ready(out)
     seconds = time.perf_counter() - t0
     slope_failed, fallback, ratio_raised = (np.asarray(f) for f in flags)
