@@ -38,9 +38,10 @@ from fitting.result import CHI2_SIGMAS
 from fitting.models import entry_transmittance, model_profiles, resolve_model
 from fitting.solvers import resolve_solver
 
-# Candidate reduced albedos of the start, as 1 - alpha' = sigma_a / sigma_t': factors of 2 from 0.99 (Rd ~ 0.003)
-# to 1.2e-7 (Rd ~ 0.9993 at eta 1.3), so that the best candidate is within a factor 1.4 of any material's.
-ONE_MINUS_ALBEDO = tuple(0.99 * 0.5**k for k in range(24))
+# Candidate reduced albedos of the start, as 1 - alpha' = sigma_a / sigma_t': alpha' in factors of 2 from 1e-4 to
+# 0.41 (dilute media such as the Narasimhan table's wines have alpha' ~ 1e-3), then 1 - alpha' in factors of 2 from
+# 0.25 to 6e-8 (Rd ~ 0.9995 at eta 1.3): the best candidate is within a factor 1.4 of any material's.
+ONE_MINUS_ALBEDO = tuple(1.0 - 1e-4 * 2.0**k for k in range(13)) + tuple(0.5**k for k in range(2, 25))
 # Multiples of the data's l_d tried with every Rd: the far-field slope is biased on short or cut ranges.
 LD_FACTORS = (0.5, 0.7, 1.0, 1.4, 2.0)
 # The second start: the best candidate whose 1 - alpha' differs from the best's by at least this factor (a different
@@ -51,6 +52,8 @@ N_STARTS = 3
 LM_LAMBDA0 = 1e-3  # initial Marquardt damping (relative to diag(J^T J))
 # Suspect-fit thresholds (see :func:`finish`).
 ALT_DCHI2 = 4.0  # another minimum within this many units of chi^2 (in the fit's own residual variance) is a tie
+STRUCTURE_RHO = 0.5  # lag-1 autocorrelation of the residuals above this (no standard errors given) ...
+STRUCTURE_RMS = 1e-6  # ... with an rms relative misfit above this: a systematic misfit
 ALT_SEPARATION = 1e-3  # ... if it differs by more than this in log sigma_a or log sigma_s' (and 3 standard errors)
 
 
@@ -118,8 +121,11 @@ def _scaled_prediction(theta, extra, cfg: Config):
 
 def residuals(theta, args):
     r, y, w, mask, eta, d, cfg = args
-    pred = _scaled_prediction(theta, (r, eta, d), cfg)
-    return jnp.where(mask, w * (pred - y), 0.0).reshape(-1)
+    # A non-finite or overflowing trial (a near-singular step) gives NaN residuals, not a model evaluated at NaN or
+    # inf (whose boundary checks would raise). exp(700) ~ 1e304.
+    bad = ~jnp.all(jnp.abs(theta) < 700.0)
+    pred = _scaled_prediction(jnp.where(bad, 0.0, theta), (r, eta, d), cfg)
+    return jnp.where(bad, jnp.nan, jnp.where(mask, w * (pred - y), 0.0)).reshape(-1)
 
 
 # --- 1. Data-driven Rd and l_d --------------------------------------------------------------------------------------
@@ -360,7 +366,10 @@ def finish(thetas, results, steps, stationary, mask, r, y, se, eta, d, cfg: Conf
       ``1 + CHI2_SIGMAS sqrt(2 / dof)`` (the residuals are larger than the noise: a wrong minimum or a wrong model);
     - 2, tie: another start converged to a different minimum (more than ``ALT_SEPARATION`` and 3 standard errors
       apart in ``log sigma_a`` or ``log sigma_s'``) whose cost is within ``ALT_DCHI2`` units of chi^2 of the chosen
-      one, in the fit's own residual variance: the data do not pick one.
+      one, in the fit's own residual variance: the data do not pick one;
+    - 4, structure: no standard errors were given, the residuals' lag-1 autocorrelation along ``r`` exceeds
+      ``STRUCTURE_RHO`` and their rms exceeds ``STRUCTURE_RMS``: a smooth misfit (a wrong minimum, or a model that
+      does not describe the data), not noise.
     """
     TRACES["finish"] += 1
     w, _ = weights(y, se, cfg)
@@ -387,7 +396,17 @@ def finish(thetas, results, steps, stationary, mask, r, y, se, eta, d, cfg: Conf
     sep = jnp.abs(thetas[:, :2] - theta[None, :2])  # (S, 2)
     different = jnp.any((sep > ALT_SEPARATION) & (sep > 3.0 * se_log[None, :]), axis=1)
     tie = ok & different & ((costs - costs[best]) <= ALT_DCHI2 * s2)
-    out["suspect"] = chi2_bad.astype(jnp.int32) + 2 * jnp.any(tie).astype(jnp.int32)
+    # Without standard errors there is no noise level to compare with; instead the residuals' lag-1 autocorrelation
+    # along r: near 0 for noise (sd 1 / sqrt(n)), near 1 for the smooth misfit of a wrong minimum or a wrong model.
+    # Only above a relative misfit of STRUCTURE_RMS (float64 rounding in noise-free fits is far below it).
+    res = jnp.where(mask, w * (_scaled_prediction(theta, (r, eta, d), cfg) - y), 0.0)  # (K, N)
+    lag = jnp.sum(res[:, 1:] * res[:, :-1] * (mask[:, 1:] & mask[:, :-1]))
+    rho1 = lag / jnp.maximum(jnp.sum(res**2), jnp.finfo(theta.dtype).tiny)
+    rms = jnp.sqrt(jnp.sum(res**2) / jnp.maximum(n, 1.0))
+    structured = ~all_se & (rho1 > STRUCTURE_RHO) & (rms > STRUCTURE_RMS)
+    out["suspect"] = (chi2_bad.astype(jnp.int32) + 2 * jnp.any(tie).astype(jnp.int32)
+                      + 4 * structured.astype(jnp.int32))
+    out["residual_autocorrelation"] = rho1
     # The best other start's solution and its cost relative to the chosen one (inf if it did not converge).
     other = jnp.where(jnp.arange(thetas.shape[0]) == best, jnp.inf, key)
     j = jnp.argmin(other)

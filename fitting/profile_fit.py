@@ -131,19 +131,23 @@ class _Problem:
             if thickness is not None:
                 raise ValueError(f"{owner}(thickness=...) applies to slab models only, not model={model.name!r}")
             self.d = np.ones(B * C)
-        lo = -np.inf if r_min is None else float(_as_array(r_min, "r_min", owner))
-        hi = np.inf if r_max is None else float(_as_array(r_max, "r_max", owner))
-        if not lo < hi:
-            raise ValueError(f"{owner}(r_min={lo:g}, r_max={hi:g}): r_min must be below r_max")
-        self.r_lo, self.r_hi = np.full(B * C, lo), np.full(B * C, hi)
+        # r_min / r_max: scalars, or (new in issue 18) arrays broadcasting to (profiles, channels) like eta.
+        lo = np.full(B * C, -np.inf) if r_min is None else self._per_problem(r_min, "r_min", lo_open=None)
+        hi = np.full(B * C, np.inf) if r_max is None else self._per_problem(r_max, "r_max", lo_open=None)
+        if np.any(lo >= hi):
+            i = int(np.argmax(lo >= hi))
+            raise ValueError(f"{owner}(r_min={lo[i]:g}, r_max={hi[i]:g}): r_min must be below r_max")
+        self.r_lo, self.r_hi = lo, hi
         self.auto = np.full(B * C, r_min is None)
-        inside = (r >= lo) & (r <= hi)
-        if inside.sum() < 3:
-            raise ValueError(f"{owner}(r_min={lo:g}, r_max={hi:g}): only {int(inside.sum())} radii in range; need >= 3")
+        inside = ((r[None, :] >= lo[:, None]) & (r[None, :] <= hi[:, None])).sum(axis=1)
+        if np.any(inside < 3):
+            i = int(np.argmin(inside))
+            raise ValueError(f"{owner}(r_min={lo[i]:g}, r_max={hi[i]:g}): only {int(inside[i])} radii in range; "
+                             "need >= 3")
 
     def _per_problem(self, x, name, lo_open):
         arr = _as_array(x, name, self.owner)
-        if np.any(arr <= lo_open):
+        if lo_open is not None and np.any(arr <= lo_open):
             raise ValueError(f"{self.owner}({name}={arr[arr <= lo_open].flat[0]:g}) is outside the allowed range (0, inf)")
         try:
             full = np.broadcast_to(arr, (self.B, self.C))
@@ -402,8 +406,8 @@ def _fit(owner, batched, r, R, R_stderr, T, T_stderr, *, eta, model, thickness, 
             reason += ("; the first radius left out: the data look like centres of equal bins from r = 0, and the "
                        "first bin's average over the source is not the model's point value")
     else:
-        reason = f"user: r_min = {float(r_min):g} mm"
-    reason += "; " + ("r_max = all radii" if r_max is None else f"r_max = {float(r_max):g} mm")
+        reason = f"user: r_min = {_mm(r_min)}"
+    reason += "; " + ("r_max = all radii" if r_max is None else f"r_max = {_mm(r_max)}")
     if not all(pb.has_stderr):
         reason += "; points with data <= 0 left out (relative weights)"
     corr = np.asarray(out["correlation"])
@@ -435,11 +439,17 @@ def _fit(owner, batched, r, R, R_stderr, T, T_stderr, *, eta, model, thickness, 
         notes=tuple(notes), seconds=seconds, static=cfg.static, fresnel=fresnel,
         model_warnings=tuple(model_warnings), suspect=u(out["suspect"]), alt_sigma_a=u(out["alt_sigma_a"]),
         alt_sigma_s_prime=u(out["alt_sigma_s_prime"]), alt_cost_ratio=u(out["alt_cost_ratio"]),
+        residual_autocorrelation=u(out["residual_autocorrelation"]),
     )
     if warn:
         for text in res.warnings:
             warnings.warn(text, FitWarning, stacklevel=3)
     return res
+
+
+def _mm(x) -> str:
+    a = np.asarray(x, dtype=np.float64)
+    return f"{float(a):g} mm" if a.ndim == 0 else f"{a.min():g}-{a.max():g} mm (per fit)"
 
 
 _DOC_ARGS = """
@@ -456,8 +466,8 @@ _DOC_ARGS = """
         thickness: slab thickness, mm (models that need it only), broadcasting like ``eta``.
         relative: the data carry an unknown positive scale, fitted per channel.
         free_eta: also fit ``eta`` (per channel).
-        r_min, r_max: fit range in mm. Default ``r_min``: one transport mean free path ``l_u`` at the initial
-            guess (``0.1 l_u`` for ``"mc"``); default ``r_max``: all radii.
+        r_min, r_max: fit range in mm, scalars or broadcasting like ``eta``. Default ``r_min``: one transport mean
+            free path ``l_u`` at the initial guess (``0.1 l_u`` for ``"mc"``); default ``r_max``: all radii.
         solver: :data:`fitting.SOLVERS` name (``"levenberg_marquardt"``, ``"gauss_newton"``, ``"dogleg"``).
         rtol, atol: solver tolerances (on the log-parameters and the residual norm).
         max_steps: iteration cap; fits that hit it report ``converged = False``.

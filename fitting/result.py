@@ -11,12 +11,14 @@ import optimistix as optx
 
 import jaxsss
 
-__all__ = ["CORRELATION_LIMIT", "CONDITION_LIMIT", "SUSPECT_CHI2", "SUSPECT_TIE", "ProfileFit"]
+__all__ = ["CORRELATION_LIMIT", "CONDITION_LIMIT", "SUSPECT_CHI2", "SUSPECT_STRUCTURE", "SUSPECT_TIE", "ProfileFit"]
 
 SUSPECT_CHI2 = 1
 """Bit of :attr:`ProfileFit.suspect`: the reduced chi^2 exceeds the noise level of the given standard errors."""
 SUSPECT_TIE = 2
 """Bit of :attr:`ProfileFit.suspect`: another start reached a different minimum of about the same cost."""
+SUSPECT_STRUCTURE = 4
+"""Bit of :attr:`ProfileFit.suspect`: no standard errors, and the residuals are a smooth misfit rather than noise."""
 CHI2_SIGMAS = 5.0
 """The chi^2 check fires above ``1 + CHI2_SIGMAS sqrt(2 / dof)`` (chi^2 / dof has standard deviation sqrt(2 / dof))."""
 
@@ -68,11 +70,14 @@ class ProfileFit(eqx.Module):
             were given and the reduced chi^2 is above ``1 + 5 sqrt(2 / dof)``: the residuals exceed the noise (a
             wrong minimum or a model that does not describe the data); ``SUSPECT_TIE`` (2) -- another start converged
             to a different minimum that fits as well (within 4 units of chi^2 in the fit's residual variance): the
-            data do not single out one answer. A suspect fit may still report ``converged``; :attr:`warnings` says
+            data do not single out one answer; ``SUSPECT_STRUCTURE`` (4) -- no standard errors were given and the
+            residuals are a smooth misfit (lag-1 autocorrelation along r above 0.5, rms above 1e-6), not noise. A
+            suspect fit may still report ``converged``; :attr:`warnings` says
             why it may be wrong and :attr:`reliable` is ``False``.
         alt_sigma_a, alt_sigma_s_prime, alt_cost_ratio: the solution from the other start (the fit solves from two
             starts of different albedo, :mod:`fitting._kernel`) and its cost over the chosen one's (``>= 1``; 1 when
             both found the same minimum, ``inf`` if it did not converge).
+        residual_autocorrelation: lag-1 autocorrelation of the weighted residuals along r.
     """
 
     sigma_a: jax.Array
@@ -112,6 +117,7 @@ class ProfileFit(eqx.Module):
     alt_sigma_a: jax.Array | None = None
     alt_sigma_s_prime: jax.Array | None = None
     alt_cost_ratio: jax.Array | None = None
+    residual_autocorrelation: jax.Array | None = None
 
     @property
     def shape(self) -> tuple:
@@ -130,6 +136,10 @@ class ProfileFit(eqx.Module):
         if self.suspect is not None:
             ok = ok & (np.asarray(self.suspect) == 0)
         return ok & (not self.model_warnings)
+
+    def _rho1(self, i):
+        return float("nan") if self.residual_autocorrelation is None else float(
+            np.asarray(self.residual_autocorrelation).reshape(-1)[i])
 
     def messages(self) -> list[str]:
         """The solver's status message per fit (flattened), ``"converged"`` on success."""
@@ -158,7 +168,7 @@ class ProfileFit(eqx.Module):
             sus = np.asarray(self.suspect).reshape(-1)
             chi2 = np.asarray(self.reduced_chi2).reshape(-1)
             n = np.asarray(self.n_points).reshape(-1)
-            for bit, what in ((SUSPECT_CHI2, "chi2"), (SUSPECT_TIE, "tie")):
+            for bit, what in ((SUSPECT_CHI2, "chi2"), (SUSPECT_TIE, "tie"), (SUSPECT_STRUCTURE, "structure")):
                 hit = (sus & bit) != 0
                 if not hit.any():
                     continue
@@ -169,6 +179,12 @@ class ProfileFit(eqx.Module):
                         f"{int(hit.sum())} of {hit.size} fits are suspect: the residuals exceed the given standard "
                         f"errors (first: fit {i}: reduced chi^2 = {chi2[i]:.3g} > {lim:.3g}); the solution may be a "
                         "wrong minimum, or the model does not describe the data")
+                elif what == "structure":
+                    out.append(
+                        f"{int(hit.sum())} of {hit.size} fits are suspect: the residuals are a smooth misfit, not "
+                        f"noise (first: fit {i}: lag-1 autocorrelation {self._rho1(i):.2f}, rms relative misfit "
+                        f"{np.sqrt(chi2[i]):.2g}); the solution may be a wrong minimum, or the model does not describe "
+                        "the data -- give standard errors to test the fit against the noise")
                 else:
                     alt_a = np.asarray(self.alt_sigma_a).reshape(-1)[i]
                     alt_s = np.asarray(self.alt_sigma_s_prime).reshape(-1)[i]
@@ -242,6 +258,7 @@ class ProfileFit(eqx.Module):
             d["alt_sigma_a"] = jaxsss.json_ready(self.alt_sigma_a)
             d["alt_sigma_s_prime"] = jaxsss.json_ready(self.alt_sigma_s_prime)
             d["alt_cost_ratio"] = jaxsss.json_ready(self.alt_cost_ratio)
+            d["residual_autocorrelation"] = jaxsss.json_ready(self.residual_autocorrelation)
         if self.relative:
             d["scale"], d["scale_stderr"] = jaxsss.json_ready(self.scale), jaxsss.json_ready(self.scale_stderr)
         if self.free_eta:
