@@ -5,7 +5,7 @@ What is run. ``n`` profiles of 3 channels (``--quick``: 40; full: 1000, i.e. 300
 - a material of the Jensen 2001 or Narasimhan 2006 table (:mod:`jaxsss.data`), its ``sigma_a`` and ``sigma_s'``
   each scaled by an independent log-uniform factor in [0.3, 3];
 - ``eta`` 1.3 (the ``mc`` model: its table's, 1.4 with ``g`` = 0.9);
-- 80 radii ``geomspace(0.02, 10) * max l_d`` of the three channels (so every channel has near and far field);
+- 100 radii ``geomspace(0.02, 10) * max l_d`` of the three channels (so every channel has near and far field);
 - the model's own profile (``dipole``, ``multipole`` with a slab of 2-10 ``l_d`` of the first channel, ``mc``) with
   multiplicative Gaussian noise of 0 (a third of the profiles) or 0.3-3%, passed as ``R_stderr`` on half of the
   noisy profiles (the others use relative weights);
@@ -31,7 +31,7 @@ from benchmarks._harness import make_row, parse_args, write_results
 NAME = "fit_sweep"
 ETA = 1.3
 MC_G, MC_ETA = 0.9, 1.4
-N_R = 80
+N_R = 100
 
 
 def _materials():

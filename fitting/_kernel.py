@@ -400,7 +400,7 @@ def finish(thetas, results, steps, stationary, mask, r, y, se, eta, d, cfg: Conf
     # along r: near 0 for noise (sd 1 / sqrt(n)), near 1 for the smooth misfit of a wrong minimum or a wrong model.
     # Only above a relative misfit of STRUCTURE_RMS (float64 rounding in noise-free fits is far below it).
     res = jnp.where(mask, w * (_scaled_prediction(theta, (r, eta, d), cfg) - y), 0.0)  # (K, N)
-    lag = jnp.sum(res[:, 1:] * res[:, :-1] * (mask[:, 1:] & mask[:, :-1]))
+    lag = jnp.sum(jnp.where(mask[:, 1:] & mask[:, :-1], res[:, 1:] * res[:, :-1], 0.0))
     rho1 = lag / jnp.maximum(jnp.sum(res**2), jnp.finfo(theta.dtype).tiny)
     rms = jnp.sqrt(jnp.sum(res**2) / jnp.maximum(n, 1.0))
     structured = ~all_se & (rho1 > STRUCTURE_RHO) & (rms > STRUCTURE_RMS)
