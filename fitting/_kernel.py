@@ -183,8 +183,10 @@ def starts(r, y, se, eta, d, r_lo, r_hi, auto, cfg: Config):
     model = resolve_model(cfg.model)
     r_min_lu = model.r_min_lu  # the default range starts at r_min_lu * l_u (model-specific)
 
-    def score(sa, ss, m):
-        pred = predict(r, sa, ss, eta, d, cfg)
+    # Every candidate's prediction once (one batched model evaluation); both passes below score from it.
+    preds = jax.vmap(lambda a, b: predict(r, a, b, eta, d, cfg))(sa_c, ss_c)  # (n_candidates, K, N)
+
+    def score(sa, pred, m):
         if cfg.relative:  # least-squares scale, profiled out
             scale = jnp.sum(jnp.where(m, (w * pred) * (w * y), 0.0)) / jnp.sum(jnp.where(m, (w * pred) ** 2, 0.0))
         else:
@@ -204,10 +206,10 @@ def starts(r, y, se, eta, d, r_lo, r_hi, auto, cfg: Config):
     # The default range depends on the start: a first pass scores each candidate on its own range (mean squares, so
     # that ranges of different lengths compare), the best one fixes the range, and a second pass scores every
     # candidate on that one range (the two starts and the final costs then compare).
-    s0, _ = jax.vmap(lambda a, b: score(a, b, range_mask(a, b)[0]))(sa_c, ss_c)
+    s0, _ = jax.vmap(lambda a, b, pr: score(a, pr, range_mask(a, b)[0]))(sa_c, ss_c, preds)
     first = jnp.argmin(s0)
     mask, r_cut, fallback = range_mask(sa_c[first], ss_c[first])
-    scores, scales = jax.vmap(lambda a, b: score(a, b, mask))(sa_c, ss_c)
+    scores, scales = jax.vmap(lambda a, pr: score(a, pr, mask))(sa_c, preds)
     best = jnp.argmin(scores)  # all inf -> 0, the data's own Rd
     def best_of(side):
         i = jnp.argmin(jnp.where(side, scores, jnp.inf))
@@ -278,8 +280,8 @@ def lm_step(state: LMState, args, cfg: Config) -> LMState:
     # (near the minimum that is the Gauss-Newton step, so the last steps converge quadratically and a stop by the
     # reduction test below leaves no damping error behind).
     delta = jnp.linalg.solve(H + state.lam * jnp.diag(dg), -g)
-    cost = lambda dl: jnp.sum(residuals(theta + dl, args) ** 2)  # noqa: E731
-    ft, ft_gn = cost(delta), cost(gn)
+    # Both trials in one batched evaluation (one copy of the model in the compiled loop).
+    ft, ft_gn = jax.vmap(lambda dl: jnp.sum(residuals(theta + dl, args) ** 2))(jnp.stack([delta, gn]))
     ft = jnp.where(jnp.isfinite(ft), ft, jnp.inf)
     use_gn = jnp.isfinite(ft_gn) & (ft_gn < ft) & jnp.all(jnp.isfinite(gn))
     # Within the cost's rounding: a Gauss-Newton step whose predicted reduction is below 1e-13 f cannot be judged by
@@ -374,7 +376,8 @@ def finish(thetas, results, steps, stationary, mask, r, y, se, eta, d, cfg: Conf
     TRACES["finish"] += 1
     w, _ = weights(y, se, cfg)
     args = (r, y, w, mask, eta, d, cfg)
-    costs = jax.vmap(lambda th: jnp.sum(residuals(th, args) ** 2))(thetas)
+    res_all = jax.vmap(lambda th: residuals(th, args))(thetas)  # (S, K N): one model evaluation for all starts
+    costs = jnp.sum(res_all**2, axis=1)
     ok = (results == optx.RESULTS.successful) & jnp.isfinite(costs)
     key = jnp.where(ok, costs * jnp.where(stationary, 1.0, 1.0 + 1e-9),
                     jnp.where(jnp.isfinite(costs), 1e300 + costs, jnp.inf))
@@ -399,7 +402,7 @@ def finish(thetas, results, steps, stationary, mask, r, y, se, eta, d, cfg: Conf
     # Without standard errors there is no noise level to compare with; instead the residuals' lag-1 autocorrelation
     # along r: near 0 for noise (sd 1 / sqrt(n)), near 1 for the smooth misfit of a wrong minimum or a wrong model.
     # Only above a relative misfit of STRUCTURE_RMS (float64 rounding in noise-free fits is far below it).
-    res = jnp.where(mask, w * (_scaled_prediction(theta, (r, eta, d), cfg) - y), 0.0)  # (K, N)
+    res = res_all[best].reshape(mask.shape)  # (K, N)
     lag = jnp.sum(jnp.where(mask[:, 1:] & mask[:, :-1], res[:, 1:] * res[:, :-1], 0.0))
     rho1 = lag / jnp.maximum(jnp.sum(res**2), jnp.finfo(theta.dtype).tiny)
     rms = jnp.sqrt(jnp.sum(res**2) / jnp.maximum(n, 1.0))

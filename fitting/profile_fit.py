@@ -230,8 +230,8 @@ def _run(stage, cfg, shard, r, *per_problem):
 # over at most SLOTS problems at a time; a converged problem leaves its slot and the next start takes it, so the
 # batch costs about its mean iteration count, not its largest (issue 18: 143 iterations against a mean of 18.5).
 FUSED_MAX = 64
-SLOTS = 256
-BLOCK_STEPS = 4
+SLOTS = 512
+BLOCK_STEPS = 8
 
 
 @lru_cache(maxsize=16)
