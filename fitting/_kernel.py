@@ -7,8 +7,8 @@ Pieces, each a pure traceable function of arrays with a static :class:`Config`:
 2. :func:`starts` -- a grid of candidates over the reduced albedo and ``l_d`` (:data:`ONE_MINUS_ALBEDO` times
    :data:`LD_FACTORS` of the data's ``l_d``, in closed form by Eq. 16) is scored in one batched evaluation of the
    forward model (weighted mean squared residual on the fit range, the scale profiled out for relative data). The
-   best candidate is the first start; the best candidates of clearly lower and of clearly higher albedo
-   (``1 - alpha'`` a factor :data:`ALT_RATIO` away on either side) are the other two. All are solved; the one with
+   best candidate is the first start; the local minima of the score over the grid (its basins) of lowest and of
+   highest albedo (within :data:`LOCAL_MIN_RATIO` of the best score) are the other two. All are solved; the one with
    the lowest cost is the answer and the others tell whether the minimum is unique (:func:`finish`). One start
    from data computed on a cut range can land in a wrong basin (issue 18: skin1 blue with ``r_min`` = 1 mm went to
    sigma_a 0.034, sigma_s' 16.1 against the truth 0.48, 1.01, at 200x the truth's cost).
@@ -44,9 +44,7 @@ from fitting.solvers import resolve_solver
 ONE_MINUS_ALBEDO = tuple(1.0 - 1e-4 * 2.0**k for k in range(13)) + tuple(0.5**k for k in range(2, 25))
 # Multiples of the data's l_d tried with every Rd: the far-field slope is biased on short or cut ranges.
 LD_FACTORS = (0.5, 0.7, 1.0, 1.4, 2.0)
-# The second start: the best candidate whose 1 - alpha' differs from the best's by at least this factor (a different
-# albedo basin; the wrong basin of issue 18 had 1 - alpha' = 0.0021 against the truth's 0.32).
-ALT_RATIO = 4.0
+LOCAL_MIN_RATIO = 100.0  # the other starts: local minima of the candidates' score within this factor of the best
 LD_CLAMP = (1e-6, 1e6)  # mm
 N_STARTS = 3
 LM_LAMBDA0 = 1e-3  # initial Marquardt damping (relative to diag(J^T J))
@@ -211,12 +209,23 @@ def starts(r, y, se, eta, d, r_lo, r_hi, auto, cfg: Config):
     mask, r_cut, fallback = range_mask(sa_c[first], ss_c[first])
     scores, scales = jax.vmap(lambda a, pr: score(a, pr, mask))(sa_c, preds)
     best = jnp.argmin(scores)  # all inf -> 0, the data's own Rd
-    def best_of(side):
-        i = jnp.argmin(jnp.where(side, scores, jnp.inf))
-        return jnp.where(jnp.isfinite(scores[i]) & side[i], i, best)
-
-    # The other starts: the best candidates of clearly lower and of clearly higher albedo.
-    picks = jnp.stack([best, best_of(om_c >= ALT_RATIO * om_c[best]), best_of(om_c * ALT_RATIO <= om_c[best])])
+    # The other starts: the basins of the score over the (albedo, l_d) grid are its local minima (no neighbour of
+    # the 8 lower); the ones of lowest and of highest albedo within a factor LOCAL_MIN_RATIO of the best score.
+    # (Nearest-neighbour alternatives are not enough: with 1% noise on a skin-like channel the best candidate, its
+    # neighbours and the best candidates a factor 4 away in albedo all led to one wrong minimum; the truth's basin
+    # showed as a local minimum at 3x the best score, 30x lower in albedo.)
+    grid = scores.reshape(len(ONE_MINUS_ALBEDO), len(LD_FACTORS))
+    padded = jnp.pad(grid, 1, constant_values=jnp.inf)
+    n_a, n_l = grid.shape
+    neighbours = jnp.stack([padded[1 + da:1 + da + n_a, 1 + dl:1 + dl + n_l]
+                            for da in (-1, 0, 1) for dl in (-1, 0, 1) if (da, dl) != (0, 0)])
+    local = (jnp.all(grid <= neighbours, axis=0) & jnp.isfinite(grid)).reshape(-1)
+    local = local & (scores <= LOCAL_MIN_RATIO * scores[best])
+    lowest = jnp.argmax(jnp.where(local, om_c, -jnp.inf))  # the lowest albedo (largest 1 - alpha')
+    highest = jnp.argmin(jnp.where(local, om_c, jnp.inf))
+    lowest = jnp.where(local[lowest], lowest, best)
+    highest = jnp.where(local[highest], highest, best)
+    picks = jnp.stack([best, lowest, highest])
     sa0, ss0 = sa_c[picks], ss_c[picks]
     sc = scales[picks]
     sc = jnp.where(jnp.isfinite(sc) & (sc > 0), sc, 1.0)
