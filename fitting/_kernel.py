@@ -44,6 +44,7 @@ from fitting.solvers import resolve_solver
 ONE_MINUS_ALBEDO = tuple(1.0 - 1e-4 * 2.0**k for k in range(13)) + tuple(0.5**k for k in range(2, 25))
 # Multiples of the data's l_d tried with every Rd: the far-field slope is biased on short or cut ranges.
 LD_FACTORS = (0.5, 0.7, 1.0, 1.4, 2.0)
+ALT_MAX_STEPS = 48  # iteration cap of the second and third starts (see step_limits)
 LOCAL_MIN_RATIO = 100.0  # the other starts: local minima of the candidates' score within this factor of the best
 LD_CLAMP = (1e-6, 1e6)  # mm
 N_STARTS = 3
@@ -256,13 +257,20 @@ class LMState(NamedTuple):
     lam: jax.Array  # damping
     nu: jax.Array  # damping growth on rejection (Nielsen)
     steps: jax.Array  # iterations done
-    status: jax.Array  # _RUNNING, _CONVERGED, _MAX_STEPS, _NONFINITE
+    status: jax.Array  # _RUNNING, _CONVERGED, _MAX_STEPS, _NONFINITE, _SLOW
+    limit: jax.Array  # iteration cap of this problem
 
 
-def lm_init(theta0) -> LMState:
+def lm_init(theta0, limit) -> LMState:
     dt = theta0.dtype
     return LMState(theta0, jnp.asarray(LM_LAMBDA0, dt), jnp.asarray(2.0, dt), jnp.asarray(0, jnp.int32),
-                   jnp.asarray(_RUNNING, jnp.int32))
+                   jnp.asarray(_RUNNING, jnp.int32), jnp.asarray(limit, jnp.int32))
+
+
+def step_limits(n_starts: int, cfg: Config):
+    """Iteration caps of the starts: ``max_steps`` for the first, ``min(max_steps, ALT_MAX_STEPS)`` for the others
+    (they only test for another basin; one that crawls is abandoned rather than holding up a batch)."""
+    return jnp.asarray([cfg.max_steps] + [min(cfg.max_steps, ALT_MAX_STEPS)] * (n_starts - 1), jnp.int32)
 
 
 def _linearise(theta, args):
@@ -316,8 +324,8 @@ def lm_step(state: LMState, args, cfg: Config) -> LMState:
     steps = state.steps + 1
     bad = ~jnp.isfinite(f)
     status = jnp.where(converged, _CONVERGED, jnp.where(stop, _SLOW, jnp.where(bad, _NONFINITE,
-                       jnp.where(steps >= cfg.max_steps, _MAX_STEPS, _RUNNING))))
-    new = LMState(new_theta, lam, jnp.minimum(nu, 1e8), steps, status.astype(jnp.int32))
+                       jnp.where(steps >= state.limit, _MAX_STEPS, _RUNNING))))
+    new = LMState(new_theta, lam, jnp.minimum(nu, 1e8), steps, status.astype(jnp.int32), state.limit)
     running = state.status == _RUNNING
     return jax.tree_util.tree_map(lambda a, b: jnp.where(running, a, b), new, state)
 
@@ -335,10 +343,11 @@ def status_result(status):
     return jax.tree_util.tree_map(lambda x: x.reshape(status.shape), out)
 
 
-def lm_solve(theta0, args, cfg: Config):
+def lm_solve(theta0, limit, args, cfg: Config):
     """``(theta, result, steps, stationary)``: the LM loop from ``theta0`` until it stops (one problem);
     ``stationary``: stopped by the Gauss-Newton test (not by the reduction test)."""
-    state = jax.lax.while_loop(lambda s: s.status == _RUNNING, lambda s: lm_step(s, args, cfg), lm_init(theta0))
+    state = jax.lax.while_loop(lambda s: s.status == _RUNNING, lambda s: lm_step(s, args, cfg),
+                               lm_init(theta0, limit))
     return state.theta, status_result(state.status), state.steps, state.status == _CONVERGED
 
 
@@ -348,10 +357,11 @@ def lm_block(state: LMState, args, cfg: Config, n_steps: int) -> LMState:
     return jax.lax.fori_loop(0, n_steps, lambda _, s: lm_step(s, args, cfg), state)
 
 
-def optx_solve(theta0, args, cfg: Config):
+def optx_solve(theta0, limit, args, cfg: Config):
     """``(theta, result, steps, stationary)`` with an Optimistix solver of the registry."""
     solver = resolve_solver(cfg.solver).make(rtol=cfg.rtol, atol=cfg.atol)
     fn = lambda th, a: residuals(th, (*a, cfg))  # noqa: E731  (cfg is static, not an argument leaf)
+    del limit  # Optimistix's cap is static: every start gets max_steps
     sol = optx.least_squares(fn, solver, theta0, args=args[:-1], max_steps=cfg.max_steps, throw=False)
     return sol.value, sol.result, sol.stats["num_steps"], sol.result == optx.RESULTS.successful
 
@@ -362,7 +372,7 @@ def solve_starts(theta0s, mask, r, y, se, eta, d, cfg: Config):
     w, _ = weights(y, se, cfg)
     args = (r, y, w, mask, eta, d, cfg)
     one = lm_solve if cfg.native else optx_solve
-    return jax.vmap(lambda th: one(th, args, cfg))(theta0s)
+    return jax.vmap(lambda th, lim: one(th, lim, args, cfg))(theta0s, step_limits(theta0s.shape[0], cfg))
 
 
 # --- 4. Choice among the starts, covariance, suspect checks --------------------------------------------------------

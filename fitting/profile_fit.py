@@ -249,43 +249,56 @@ def _compiled_block(cfg: K.Config):
 
 def _solve_slots(cfg, r, theta0, mask, y, se, eta, d):
     """The native LM from every start of every problem, ``theta0 (P, S, p)``, in slot blocks (see :data:`SLOTS`):
-    ``(thetas (P, S, p), results (P, S), steps (P, S), stationary (P, S))``."""
+    ``(thetas (P, S, p), results (P, S), steps (P, S), stationary (P, S))``.
+
+    Slots hold problems; after each block of :data:`BLOCK_STEPS` iterations the host records the stopped ones and
+    refills their slots from the queue. When the queue is empty and at most a quarter of the slots still run, the
+    survivors move to a block a quarter of the width (a power of two, at least 8), so the tail of slow problems does
+    not run at the full width."""
     P_, S, p = theta0.shape
     Q = P_ * S
     starts0 = np.asarray(theta0).reshape(Q, p)
+    limits0 = np.tile(np.asarray(K.step_limits(S, cfg)), P_)
     w = jax.vmap(lambda a, b: K.weights(a, b, cfg)[0])(y, se)
     n = min(_bucket(Q), SLOTS)
-    theta = np.array(starts0[:n]) if Q >= n else np.concatenate([starts0, np.repeat(starts0[-1:], n - Q, 0)])
-    slot_q = np.arange(n)
-    slot_q[Q:] = -1
-    lam = np.full(n, K.LM_LAMBDA0)
-    nu = np.full(n, 2.0)
-    steps = np.zeros(n, np.int32)
-    status = np.where(slot_q >= 0, K._RUNNING, K._CONVERGED).astype(np.int32)
+    slot_q = np.full(n, -1)
+    theta = np.zeros((n, p))
+    lam, nu = np.full(n, K.LM_LAMBDA0), np.full(n, 2.0)
+    steps, status = np.zeros(n, np.int32), np.full(n, K._CONVERGED, np.int32)
+    limit = np.ones(n, np.int32)
     out_theta, out_steps, out_status = np.zeros((Q, p)), np.zeros(Q, np.int32), np.zeros(Q, np.int32)
-    nxt = min(n, Q)
-    block = _compiled_block(cfg)
+    nxt = 0
     r = jnp.asarray(r)
     while True:
-        state = K.LMState(jnp.asarray(theta), jnp.asarray(lam), jnp.asarray(nu), jnp.asarray(steps),
-                          jnp.asarray(status))
-        with trusted_traces():
-            state = block(r, state, jnp.asarray(np.maximum(slot_q, 0) // S), y, w, mask, eta, d)
-        theta, lam, nu, steps, status = (np.array(x) for x in state)
-        done = (status != K._RUNNING) & (slot_q >= 0)
-        if np.any(done):
-            q = slot_q[done]
-            out_theta[q], out_steps[q], out_status[q] = theta[done], steps[done], status[done]
-            slot_q[done] = -1
+        # Refill the free slots from the queue.
         free = np.flatnonzero(slot_q < 0)
         take = min(free.size, Q - nxt)
         if take:
             f = free[:take]
             slot_q[f] = np.arange(nxt, nxt + take)
             theta[f], lam[f], nu[f], steps[f], status[f] = starts0[nxt:nxt + take], K.LM_LAMBDA0, 2.0, 0, K._RUNNING
+            limit[f] = limits0[nxt:nxt + take]
             nxt += take
-        if not np.any(slot_q >= 0):
+        active = np.flatnonzero(slot_q >= 0)
+        if active.size == 0:
             break
+        if nxt == Q and active.size <= n // 4 and n > 8:
+            # Compact the survivors into a narrower block.
+            m = max(8, n // 4)
+            keep = np.concatenate([active, np.flatnonzero(slot_q < 0)[:m - active.size]])
+            slot_q, theta, lam, nu, steps, status, limit = (a[keep] for a in (slot_q, theta, lam, nu, steps, status,
+                                                                              limit))
+            n = m
+        state = K.LMState(*(jnp.asarray(a) for a in (theta, lam, nu, steps, status, limit)))
+        with trusted_traces():
+            state = _compiled_block(cfg)(r, state, jnp.asarray(np.maximum(slot_q, 0) // S), y, w, mask, eta, d)
+        theta, lam, nu, steps, status, limit = (np.array(x) for x in state)
+        done = (status != K._RUNNING) & (slot_q >= 0)
+        if np.any(done):
+            q = slot_q[done]
+            out_theta[q], out_steps[q], out_status[q] = theta[done], steps[done], status[done]
+            slot_q[done] = -1
+            status[done] = K._CONVERGED  # an empty slot is a frozen one
     status = out_status.reshape(P_, S)
     return (jnp.asarray(out_theta.reshape(P_, S, p)), K.status_result(status), jnp.asarray(out_steps.reshape(P_, S)),
             jnp.asarray(status == K._CONVERGED))
