@@ -91,3 +91,17 @@ def test_randomised_sweep_subset_has_no_wrong_fit_reporting_success():
     stats = fit_sweep.run(("dipole",), 12, seed=3)["dipole"]
     assert stats["wrong5_reliable"] == 0, stats["examples"]
     assert stats["reliable"] >= stats["fits"] // 2, stats
+
+
+def test_r_min_per_channel_equals_separate_fits():
+    """``r_min`` may broadcast like ``eta`` (one per channel): the same as fitting each channel with its own value."""
+    rng = np.random.default_rng(2)
+    y = dipole(SKIN1_SA, SKIN1_SS) * (1.0 + 0.01 * rng.standard_normal((R.size, 3)))
+    r_min = np.array([0.5, 1.0, 2.0])
+    both = fitting.fit_profile(R, y, eta=ETA, r_min=r_min, warn=False)
+    np.testing.assert_array_equal(np.asarray(both.r_min) >= r_min, True)
+    for c in range(3):
+        one = fitting.fit_profile(R, y[:, c], eta=ETA, r_min=float(r_min[c]), warn=False)
+        np.testing.assert_allclose(np.asarray(both.sigma_a)[c], one.sigma_a, rtol=1e-9)
+    with pytest.raises(ValueError, match="r_min"):
+        fitting.fit_profile(R, y, eta=ETA, r_min=[1.0, 2.0])
