@@ -4,7 +4,10 @@ This package is installed with ``jaxsss`` and imports only its public API (``imp
 
 - :func:`fit_profile` / :func:`fit_profiles`: least-squares fits of R(r) and/or T(r) (absolute per incident photon,
   or relative with a free scale), one compiled vmapped call for all channels and profiles, sharded over devices
-  when there are several; :class:`ProfileFit` holds estimates, standard errors, correlation and solver status.
+  when there are several; :class:`ProfileFit` holds estimates, standard errors, correlation and solver status. Each
+  fit is solved from three starts (the basins of a grid over albedo and ``l_d``), and a fit that may be wrong says
+  so: ``ProfileFit.suspect`` (residuals above the given noise, another minimum as good, a smooth misfit),
+  ``ProfileFit.reliable`` and a :class:`FitWarning`.
 - :func:`fit_jacobian_wrt_data`: derivatives of the fitted parameters with respect to the data (implicit function
   theorem).
 - Registries: :data:`FORWARD_MODELS` (``dipole``, ``multipole``; :func:`register_model` adds more) and
@@ -20,7 +23,14 @@ from fitting.image_fit import ImageFit, fit_image
 from fitting.io import COLUMNS, ProfileData, ProfileFileError, load_profile_npy, read_profile, read_profile_csv
 from fitting.models import FORWARD_MODELS, ForwardModel, entry_transmittance, register_model, resolve_model
 from fitting.profile_fit import FitWarning, fit_jacobian_wrt_data, fit_profile, fit_profiles
-from fitting.result import CONDITION_LIMIT, CORRELATION_LIMIT, ProfileFit
+from fitting.result import (
+    CONDITION_LIMIT,
+    CORRELATION_LIMIT,
+    SUSPECT_CHI2,
+    SUSPECT_STRUCTURE,
+    SUSPECT_TIE,
+    ProfileFit,
+)
 from fitting.solvers import SOLVERS, LeastSquaresSolver, resolve_solver
 
 __all__ = [
@@ -36,6 +46,9 @@ __all__ = [
     "ProfileFileError",
     "ProfileFit",
     "SOLVERS",
+    "SUSPECT_CHI2",
+    "SUSPECT_STRUCTURE",
+    "SUSPECT_TIE",
     "entry_transmittance",
     "fit_image",
     "fit_jacobian_wrt_data",
