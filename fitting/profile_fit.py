@@ -29,6 +29,7 @@ import numpy as np
 
 import jaxsss
 from jaxsss._validate import trusted_traces
+from jaxsss.fresnel import resolve_fresnel_method
 from fitting import _kernel as K
 from fitting.io import ProfileData
 from fitting.models import resolve_model
@@ -206,14 +207,16 @@ def _run(stage, cfg, shard, r, *per_problem):
     """Run a stage over all problems. The problem axis is padded (copies of the last problem, see :func:`_bucket`);
     with several devices (and ``shard``) it is placed with a :class:`jax.sharding.NamedSharding` over a 1-D mesh
     (``r`` replicated) and jit's SPMD partitioner splits the work."""
+    # Padding and unpadding in NumPy: each eager jnp op would compile a small program of its own in a new process.
+    per_problem = jax.tree_util.tree_map(np.asarray, per_problem)
     P_ = jax.tree_util.tree_leaves(per_problem)[0].shape[0]
     mesh = _mesh(P_) if shard in (None, True) else None
     n_dev = 1 if mesh is None else mesh.size
     pad = _bucket(P_, n_dev) - P_
     if pad:
-        per_problem = jax.tree_util.tree_map(lambda x: jnp.concatenate([x, jnp.repeat(x[-1:], pad, axis=0)]),
+        per_problem = jax.tree_util.tree_map(lambda x: np.concatenate([x, np.repeat(x[-1:], pad, axis=0)]),
                                              per_problem)
-    r = jnp.asarray(r)
+    r = np.asarray(r)
     if mesh is not None:
         from jax.sharding import NamedSharding
         from jax.sharding import PartitionSpec as P
@@ -223,9 +226,7 @@ def _run(stage, cfg, shard, r, *per_problem):
                                              per_problem)
     with trusted_traces():  # inputs validated on the host: no host callbacks, so the persistent cache can store it
         out = _compiled(stage, cfg)(r, *per_problem)
-    if mesh is not None:  # gather to the host (the next stage reshards)
-        out = jax.tree_util.tree_map(lambda x: jnp.asarray(np.asarray(x)), out)
-    return jax.tree_util.tree_map(lambda x: x[:P_], out)  # drop the padding
+    return jax.tree_util.tree_map(lambda x: np.asarray(x)[:P_], out)  # drop the padding
 
 
 # Batches of more than FUSED_MAX problems (profiles x channels) run the LM loop in blocks of BLOCK_STEPS iterations
@@ -352,7 +353,7 @@ def _fit(owner, batched, r, R, R_stderr, T, T_stderr, *, eta, model, thickness, 
     t0 = time.perf_counter()
     model = resolve_model(model)
     resolve_solver(solver)
-    jaxsss.F_dr(1.5, fresnel)  # validates the F_dr method name (lists the valid ones)
+    resolve_fresnel_method(fresnel)  # validates the F_dr method name (lists the valid ones)
     r, R, R_stderr, T, T_stderr = _unpack_data(r, R, R_stderr, T, T_stderr)
     pb = _Problem(owner, r, R, R_stderr, T, T_stderr, eta, thickness, model, batched, r_min, r_max)
     if not (isinstance(max_steps, int) and max_steps >= 1):
@@ -370,8 +371,8 @@ def _fit(owner, batched, r, R, R_stderr, T, T_stderr, *, eta, model, thickness, 
         if np.allclose(step, step[0], rtol=1e-6) and abs(2.0 * pb.r[0] - step[0]) <= 1e-6 * step[0]:
             source_bin = True
             pb.r_lo = np.maximum(pb.r_lo, 0.5 * (pb.r[0] + pb.r[1]))
-    y, se, eta_p, d = (jnp.asarray(a) for a in (pb.y, pb.se, pb.eta, pb.d))
-    per_problem = (y, se, eta_p, d, jnp.asarray(pb.r_lo), jnp.asarray(pb.r_hi), jnp.asarray(pb.auto))
+    y, se, eta_p, d = pb.y, pb.se, pb.eta, pb.d
+    per_problem = (y, se, eta_p, d, pb.r_lo, pb.r_hi, pb.auto)
     notes = []
     P_ = pb.B * pb.C
     if model.prepare is None and not (cfg.native and P_ * K.N_STARTS > FUSED_MAX):
@@ -389,15 +390,16 @@ def _fit(owner, batched, r, R, R_stderr, T, T_stderr, *, eta, model, thickness, 
         start = theta0
         for attempt in range(3):
             if model.prepare is not None:
-                need = _prepare_static(model, pb, jnp.exp(start[:, :, 0]).max(1), jnp.exp(start[:, :, 1]).max(1),
-                                       eta_p, fresnel, notes)
+                st = np.exp(np.asarray(start))
+                need = _prepare_static(model, pb, st[:, :, 0].max(1), st[:, :, 1].max(1), eta_p, fresnel, notes)
                 cfg = cfg._replace(static=min(max(2 * need, cfg.static if attempt else 0), model.static_cap))
             thetas, results, steps, stationary = _solve(cfg, shard, pb.r, start, mask, y, se, eta_p, d)
             steps_total = steps_total + steps
             if model.prepare is None:
                 break
-            need = max(_prepare_static(model, pb, jnp.exp(thetas[:, i, 0]), jnp.exp(thetas[:, i, 1]), eta_p, fresnel,
-                                       notes) for i in range(thetas.shape[1]))
+            sol = np.exp(np.asarray(thetas))
+            need = max(_prepare_static(model, pb, sol[:, i, 0], sol[:, i, 1], eta_p, fresnel, notes)
+                       for i in range(sol.shape[1]))
             if need <= cfg.static:
                 break
             start = thetas
