@@ -262,9 +262,12 @@ class LMState(NamedTuple):
 
 
 def lm_init(theta0, limit) -> LMState:
-    dt = theta0.dtype
-    return LMState(theta0, jnp.asarray(LM_LAMBDA0, dt), jnp.asarray(2.0, dt), jnp.asarray(0, jnp.int32),
-                   jnp.asarray(_RUNNING, jnp.int32), jnp.asarray(limit, jnp.int32))
+    # Every field derived from theta0, so that under vmap the whole carry is batched from the start: the while
+    # loop's batching rule then traces its body once instead of twice (a fixpoint over the carry's batched-ness).
+    zero = 0.0 * theta0[0]
+    izero = zero.astype(jnp.int32)
+    return LMState(theta0, zero + LM_LAMBDA0, zero + 2.0, izero, izero + _RUNNING,
+                   izero + jnp.asarray(limit, jnp.int32))
 
 
 def step_limits(n_starts: int, cfg: Config):
