@@ -134,8 +134,9 @@ def startup_rows(tmp):
     prof = dipole_np(r40, 0.01, 1.5, ETA)
     se = 0.02 * prof
     csv = tmp / "profile.csv"
+    noisy40 = prof + se * rng.standard_normal(40)
     csv.write_text("r_mm,R,R_stderr\n" + "\n".join(
-        f"{float(a)!r},{float(b)!r},{float(c)!r}" for a, b, c in zip(r40, prof + se * rng.standard_normal(40), se)) + "\n")
+        f"{float(a)!r},{float(b)!r},{float(c)!r}" for a, b, c in zip(r40, noisy40, se)) + "\n")
     npy = tmp / "skin1.npy"
     np.save(npy, noisy(SKIN1_SA, SKIN1_SS, np.random.default_rng(0)))
     script = tmp / "first_fit.py"

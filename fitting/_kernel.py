@@ -15,8 +15,8 @@ Pieces, each a pure traceable function of arrays with a static :class:`Config`:
 3. :func:`lm_solve` (the default ``levenberg_marquardt``) -- a small Levenberg-Marquardt loop in the log-parameters
    (Marquardt's diagonal scaling, Nielsen's damping update). It stops when the undamped Gauss-Newton step is below
    ``atol + rtol |theta|`` in every log-parameter: the point is then stationary to that precision (this also ends
-   fits that sit on the float64 rounding floor of noisy data), or by MINPACK's relative-reduction test. Other solvers go through
-   :func:`optimistix.least_squares`. :func:`lm_block` runs a few iterations of many problems at once so that a batch
+   fits that sit on the float64 rounding floor of noisy data), or by MINPACK's relative-reduction test. Other
+   solvers go through :func:`optimistix.least_squares`. :func:`lm_block` runs a few iterations of many problems at once so that a batch
    can retire converged problems and refill their slots (``fitting.profile_fit``).
 4. :func:`finish` -- the covariance from ``J^T J`` at the chosen solution and the suspect-fit checks.
 
@@ -384,7 +384,8 @@ def finish(thetas, results, steps, stationary, mask, r, y, se, eta, d, cfg: Conf
     dict of estimates, standard errors, status and the suspect-fit checks.
 
     The chosen solution is the converged one of lowest cost (a stationary one wins a tie to 1e-9: costs at the float64
-    floor of noisy data agree to ~1e-15 while the parameters of a stop by the reduction test may differ by 1e-9). Suspect (``suspect`` > 0, a bit field):
+    floor of noisy data agree to ~1e-15 while the parameters of a stop by the reduction test may differ by 1e-9).
+    Suspect (``suspect`` > 0, a bit field):
 
     - 1, chi^2: standard errors were given for every fitted point and the reduced chi^2 exceeds
       ``1 + CHI2_SIGMAS sqrt(2 / dof)`` (the residuals are larger than the noise: a wrong minimum or a wrong model);
@@ -406,7 +407,8 @@ def finish(thetas, results, steps, stationary, mask, r, y, se, eta, d, cfg: Conf
     best = jnp.argmin(key)
     theta = thetas[best]
     sa, ss, scale, eta_hat = unpack(theta, eta, cfg)
-    out = {"sigma_a": sa, "sigma_s_prime": ss, "scale": scale, "eta": eta_hat, "result": jax.tree_util.tree_map(lambda x: x[best], results),
+    out = {"sigma_a": sa, "sigma_s_prime": ss, "scale": scale, "eta": eta_hat,
+           "result": jax.tree_util.tree_map(lambda x: x[best], results),
            
            "iterations": jnp.sum(steps)}
     out.update(covariance(theta, args, cfg))
