@@ -16,8 +16,8 @@ Pieces, each a pure traceable function of arrays with a static :class:`Config`:
    (Marquardt's diagonal scaling, Nielsen's damping update). It stops when the undamped Gauss-Newton step is below
    ``atol + rtol |theta|`` in every log-parameter: the point is then stationary to that precision (this also ends
    fits that sit on the float64 rounding floor of noisy data), or by MINPACK's relative-reduction test. Other
-   solvers go through :func:`optimistix.least_squares`. :func:`lm_block` runs a few iterations of many problems at once so that a batch
-   can retire converged problems and refill their slots (``fitting.profile_fit``).
+   solvers go through :func:`optimistix.least_squares`. :func:`lm_block` runs a few iterations of many problems at
+   once so that a batch can retire converged problems and refill their slots (``fitting.profile_fit``).
 4. :func:`finish` -- the covariance from ``J^T J`` at the chosen solution and the suspect-fit checks.
 
 Residuals: ``w (scale * model(r) - data)`` on the points inside the fit range (zero elsewhere), with
