@@ -4,7 +4,10 @@ This package is installed with ``jaxsss`` and imports only its public API (``imp
 
 - :func:`fit_profile` / :func:`fit_profiles`: least-squares fits of R(r) and/or T(r) (absolute per incident photon,
   or relative with a free scale), one compiled vmapped call for all channels and profiles, sharded over devices
-  when there are several; :class:`ProfileFit` holds estimates, standard errors, correlation and solver status.
+  when there are several; :class:`ProfileFit` holds estimates, standard errors, correlation and solver status. Each
+  fit is solved from three starts (the basins of a grid over albedo and ``l_d``), and a fit that may be wrong says
+  so: ``ProfileFit.suspect`` (residuals above the given noise, another minimum as good, a smooth misfit),
+  ``ProfileFit.reliable`` and a :class:`FitWarning`.
 - :func:`fit_jacobian_wrt_data`: derivatives of the fitted parameters with respect to the data (implicit function
   theorem).
 - Registries: :data:`FORWARD_MODELS` (``dipole``, ``multipole``; :func:`register_model` adds more) and
@@ -25,7 +28,14 @@ from fitting.mco_fit import MCO_MODELS, McoFit, fit_mco
 from fitting.models import FORWARD_MODELS, ForwardModel, entry_transmittance, register_model, resolve_model
 from fitting.replay_fit import ReplayData, ReplayFit, fit_replay, fit_slab_totals
 from fitting.profile_fit import FitWarning, fit_jacobian_wrt_data, fit_profile, fit_profiles
-from fitting.result import CONDITION_LIMIT, CORRELATION_LIMIT, ProfileFit
+from fitting.result import (
+    CONDITION_LIMIT,
+    CORRELATION_LIMIT,
+    SUSPECT_CHI2,
+    SUSPECT_STRUCTURE,
+    SUSPECT_TIE,
+    ProfileFit,
+)
 from fitting.solvers import SOLVERS, LeastSquaresSolver, resolve_solver
 
 __all__ = [
@@ -47,6 +57,9 @@ __all__ = [
     "ReplayData",
     "ReplayFit",
     "SOLVERS",
+    "SUSPECT_CHI2",
+    "SUSPECT_STRUCTURE",
+    "SUSPECT_TIE",
     "entry_transmittance",
     "fit_image",
     "fit_jacobian_wrt_data",

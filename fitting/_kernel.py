@@ -1,15 +1,24 @@
 """The compiled pieces of a profile fit, for ONE problem (one channel of one profile); callers vmap them.
 
-Three stages, each a pure traceable function of arrays with a static :class:`Config`:
+Pieces, each a pure traceable function of arrays with a static :class:`Config`:
 
 1. :func:`data_guess` -- from the data alone: ``l_d`` from the far-field log-slope of ``r^2 R(r)`` (the dipole's far
-   field falls like ``exp(-sigma_tr r) / r^2``) and ``Rd`` from the plane integral ``int 2 pi r R(r) dr`` divided by
-   the entry transmittance (absolute data only).
-2. :func:`initial_guess` -- candidates ``Rd`` (the integral's and a fixed grid) at that ``l_d`` are turned into
-   ``(sigma_a, sigma_s')`` by :func:`jaxsss.from_rd_ld`; the forward model scores each (weighted mean squared
-   residual over ``r >= l_u`` of the candidate, with the scale profiled out for relative data) and the best is the
-   start. The fit range is then set from the start's ``l_u``.
-3. :func:`solve` -- Optimistix least squares in the log-parameters, then the covariance from ``J^T J``.
+   field falls like ``exp(-sigma_tr r) / r^2``).
+2. :func:`starts` -- a grid of candidates over the reduced albedo and ``l_d`` (:data:`ONE_MINUS_ALBEDO` times
+   :data:`LD_FACTORS` of the data's ``l_d``, in closed form by Eq. 16) is scored in one batched evaluation of the
+   forward model (weighted mean squared residual on the fit range, the scale profiled out for relative data). The
+   best candidate is the first start; the local minima of the score over the grid (its basins) of lowest and of
+   highest albedo (within :data:`LOCAL_MIN_RATIO` of the best score) are the other two. All are solved; the one with
+   the lowest cost is the answer and the others tell whether the minimum is unique (:func:`finish`). One start
+   from data computed on a cut range can land in a wrong basin (issue 18: skin1 blue with ``r_min`` = 1 mm went to
+   sigma_a 0.034, sigma_s' 16.1 against the truth 0.48, 1.01, at 200x the truth's cost).
+3. :func:`lm_solve` (the default ``levenberg_marquardt``) -- a small Levenberg-Marquardt loop in the log-parameters
+   (Marquardt's diagonal scaling, Nielsen's damping update). It stops when the undamped Gauss-Newton step is below
+   ``atol + rtol |theta|`` in every log-parameter: the point is then stationary to that precision (this also ends
+   fits that sit on the float64 rounding floor of noisy data), or by MINPACK's relative-reduction test. Other
+   solvers go through :func:`optimistix.least_squares`. :func:`lm_block` runs a few iterations of many problems at
+   once so that a batch can retire converged problems and refill their slots (``fitting.profile_fit``).
+4. :func:`finish` -- the covariance from ``J^T J`` at the chosen solution and the suspect-fit checks.
 
 Residuals: ``w (scale * model(r) - data)`` on the points inside the fit range (zero elsewhere), with
 ``w = 1 / stderr`` when standard errors are given and ``w = 1 / data`` (relative residuals) otherwise; without
@@ -25,15 +34,26 @@ import jax
 import jax.numpy as jnp
 import optimistix as optx
 
-import jaxsss
+from fitting.result import CHI2_SIGMAS
 from fitting.models import entry_transmittance, model_profiles, resolve_model
 from fitting.solvers import resolve_solver
 
-# Candidate total diffuse reflectances for the start (dense near 1, where high-albedo materials live).
-RD_GRID = (0.002, 0.005, 0.01, 0.02, 0.05, 0.1, 0.2, 0.3, 0.4, 0.5, 0.6, 0.7, 0.8, 0.9, 0.95, 0.98, 0.99, 0.995,
-           0.998, 0.999, 0.9995, 0.9999)
-RD_CLAMP = (1e-4, 1.0 - 1e-4)  # the integral's Rd is clamped into this range (from_rd_ld needs (0, 1))
+# Candidate reduced albedos of the start, as 1 - alpha' = sigma_a / sigma_t': alpha' in factors of 2 from 1e-4 to
+# 0.41 (dilute media such as the Narasimhan table's wines have alpha' ~ 1e-3), then 1 - alpha' in factors of 2 from
+# 0.25 to 6e-8 (Rd ~ 0.9995 at eta 1.3): the best candidate is within a factor 1.4 of any material's.
+ONE_MINUS_ALBEDO = tuple(1.0 - 1e-4 * 2.0**k for k in range(13)) + tuple(0.5**k for k in range(2, 25))
+# Multiples of the data's l_d tried with every Rd: the far-field slope is biased on short or cut ranges.
+LD_FACTORS = (0.5, 0.7, 1.0, 1.4, 2.0)
+ALT_MAX_STEPS = 48  # iteration cap of the second and third starts (see step_limits)
+LOCAL_MIN_RATIO = 100.0  # the other starts: local minima of the candidates' score within this factor of the best
 LD_CLAMP = (1e-6, 1e6)  # mm
+N_STARTS = 3
+LM_LAMBDA0 = 1e-3  # initial Marquardt damping (relative to diag(J^T J))
+# Suspect-fit thresholds (see :func:`finish`).
+ALT_DCHI2 = 4.0  # another minimum within this many units of chi^2 (in the fit's own residual variance) is a tie
+STRUCTURE_RHO = 0.5  # lag-1 autocorrelation of the residuals above this (no standard errors given) ...
+STRUCTURE_RMS = 1e-6  # ... with an rms relative misfit above this: a systematic misfit
+ALT_SEPARATION = 1e-3  # ... if it differs by more than this in log sigma_a or log sigma_s' (and 3 standard errors)
 
 
 class Config(NamedTuple):
@@ -54,9 +74,14 @@ class Config(NamedTuple):
     def n_params(self) -> int:
         return 2 + int(self.relative) + int(self.free_eta)
 
+    @property
+    def native(self) -> bool:
+        """The solver is this module's batched Levenberg-Marquardt loop."""
+        return resolve_solver(self.solver).native
 
-TRACES = {"solve": 0, "initial_guess": 0, "data_guess": 0}
-"""How often each stage was traced (a test checks that a second call with new values does not retrace)."""
+
+TRACES = {"fit": 0, "starts": 0, "solve": 0, "lm_block": 0, "finish": 0, "data_guess": 0}
+"""How often each piece was traced (a test checks that a second call with new values does not retrace)."""
 
 
 def unpack(theta, eta, cfg: Config):
@@ -95,13 +120,16 @@ def _scaled_prediction(theta, extra, cfg: Config):
 
 def residuals(theta, args):
     r, y, w, mask, eta, d, cfg = args
-    pred = _scaled_prediction(theta, (r, eta, d), cfg)
-    return jnp.where(mask, w * (pred - y), 0.0).reshape(-1)
+    # A non-finite or overflowing trial (a near-singular step) gives NaN residuals, not a model evaluated at NaN or
+    # inf (whose boundary checks would raise). exp(700) ~ 1e304.
+    bad = ~jnp.all(jnp.abs(theta) < 700.0)
+    pred = _scaled_prediction(jnp.where(bad, 0.0, theta), (r, eta, d), cfg)
+    return jnp.where(bad, jnp.nan, jnp.where(mask, w * (pred - y), 0.0)).reshape(-1)
 
 
-# --- Stage 1 ------------------------------------------------------------------------------------------------------
-def data_guess(r, y, se, eta, r_lo, r_hi, cfg: Config):
-    """``(rd, ld, rd_clamped, slope_failed)`` from the data alone (see the module docstring)."""
+# --- 1. Data-driven Rd and l_d --------------------------------------------------------------------------------------
+def data_guess(r, y, se, r_lo, r_hi, cfg: Config):
+    """``(ld, slope_failed)``: ``l_d`` from the far-field log-slope of the first output (see the module docstring)."""
     TRACES["data_guess"] += 1
     w, usable = weights(y, se, cfg)
     y0, w0 = y[0], w[0]
@@ -124,40 +152,40 @@ def data_guess(r, y, se, eta, r_lo, r_hi, cfg: Config):
     span = jnp.where(jnp.isfinite(r_last - r_first) & (r_last > r_first), r_last - r_first, 1.0)
     sigma_tr = jnp.where(slope_failed, 1.0 / span, sigma_tr)
     ld = jnp.clip(1.0 / sigma_tr, *LD_CLAMP)
-    slope_failed = slope_failed | (ld != 1.0 / sigma_tr)
-    # Rd: the plane integral of the first output over the data range, per entering photon.
-    if cfg.relative:
-        rd_raw = jnp.asarray(0.5, dtype=r.dtype)
-    else:
-        yy = jnp.where(in_range, y0, 0.0)
-        f = 2.0 * jnp.pi * r * yy
-        rd_raw = jnp.sum(0.5 * (f[1:] + f[:-1]) * jnp.diff(r)) / entry_transmittance(eta)
-    rd = jnp.clip(rd_raw, *RD_CLAMP)
-    rd_clamped = (rd != rd_raw) & (not cfg.relative)
-    return rd, ld, rd_clamped, slope_failed
+    return ld, slope_failed | (ld != 1.0 / sigma_tr)
 
 
-# --- Stage 2 ------------------------------------------------------------------------------------------------------
-def candidates(rd, ld, eta, fresnel):
-    """``(sigma_a, sigma_s')`` of the start candidates: the data's ``Rd`` and :data:`RD_GRID`, at ``l_d``."""
-    rds = jnp.concatenate([jnp.reshape(rd, (1,)), jnp.asarray(RD_GRID, dtype=jnp.result_type(rd))])
-    med = jaxsss.from_rd_ld(rds, ld, eta, fresnel=fresnel).medium
-    return med.sigma_a, med.sigma_s_prime
+# --- 2. Multi-start ------------------------------------------------------------------------------------------------
+def candidates(ld):
+    """``(sigma_a, sigma_s', 1 - alpha')`` of the start candidates, each ``(n_albedo * n_ld,)``: the reduced albedos
+    of :data:`ONE_MINUS_ALBEDO` at :data:`LD_FACTORS` times ``l_d``, by the hierarchical paper's Eq. 16 (closed form,
+    no Rd inversion in the compiled fit)."""
+    dt = jnp.result_type(ld)
+    om, lds = jnp.meshgrid(jnp.asarray(ONE_MINUS_ALBEDO, dtype=dt), ld * jnp.asarray(LD_FACTORS, dtype=dt),
+                           indexing="ij")
+    om, lds = om.reshape(-1), lds.reshape(-1)
+    # Eq. 16: u = sqrt(3 (1 - alpha')) = sigma_tr / sigma_t'; sigma_a = sigma_tr u / 3; sigma_s' = alpha' sigma_t'.
+    u = jnp.sqrt(3.0 * om)
+    sigma_tr = 1.0 / lds
+    return sigma_tr * u / 3.0, (1.0 - om) * sigma_tr / u, om
 
 
-def initial_guess(r, y, se, eta, d, r_lo, r_hi, auto, rd, ld, cfg: Config):
-    """``(theta0, mask, r_cut, range_fallback)``: the start and the fit range (see the module docstring)."""
-    TRACES["initial_guess"] += 1
+def starts(r, y, se, eta, d, r_lo, r_hi, auto, cfg: Config):
+    """``(theta0, mask, r_cut, flags)``: :data:`N_STARTS` starts ``(N_STARTS, p)``, the fit range ``(K, N)``, the
+    threshold ``r >= r_cut`` and the notes' flags ``(slope_failed, range_fallback, ratio_raised)``."""
+    TRACES["starts"] += 1
+    ld, slope_failed = data_guess(r, y, se, r_lo, r_hi, cfg)
     w, usable = weights(y, se, cfg)
     in_range = usable & ((r >= r_lo) & (r <= r_hi))[None, :]
-    sa_c, ss_c = candidates(rd, ld, eta, cfg.fresnel)
+    sa_c, ss_c, om_c = candidates(ld)
     p = cfg.n_params
+    model = resolve_model(cfg.model)
+    r_min_lu = model.r_min_lu  # the default range starts at r_min_lu * l_u (model-specific)
 
-    r_min_lu = resolve_model(cfg.model).r_min_lu  # the default range starts at r_min_lu * l_u (model-specific)
+    # Every candidate's prediction once (one batched model evaluation); both passes below score from it.
+    preds = jax.vmap(lambda a, b: predict(r, a, b, eta, d, cfg))(sa_c, ss_c)  # (n_candidates, K, N)
 
-    def score(sa, ss):
-        pred = predict(r, sa, ss, eta, d, cfg)
-        m = in_range & (r >= r_min_lu / (sa + ss))[None, :]
+    def score(sa, pred, m):
         if cfg.relative:  # least-squares scale, profiled out
             scale = jnp.sum(jnp.where(m, (w * pred) * (w * y), 0.0)) / jnp.sum(jnp.where(m, (w * pred) ** 2, 0.0))
         else:
@@ -168,47 +196,257 @@ def initial_guess(r, y, se, eta, d, r_lo, r_hi, auto, rd, ld, cfg: Config):
         s = jnp.where((n > p) & jnp.isfinite(s) & (scale > 0.0), s, jnp.inf)
         return s, scale
 
-    scores, scales = jax.vmap(score)(sa_c, ss_c)
+    def range_mask(sa, ss):
+        r_cut = jnp.where(auto, r_min_lu / (sa + ss), r_lo)
+        m = in_range & (r >= r_cut)[None, :]
+        fallback = jnp.sum(m) <= p
+        return jnp.where(fallback, in_range, m), r_cut, fallback
+
+    # The default range depends on the start: a first pass scores each candidate on its own range (mean squares, so
+    # that ranges of different lengths compare), the best one fixes the range, and a second pass scores every
+    # candidate on that one range (the two starts and the final costs then compare).
+    s0, _ = jax.vmap(lambda a, b, pr: score(a, pr, range_mask(a, b)[0]))(sa_c, ss_c, preds)
+    first = jnp.argmin(s0)
+    mask, r_cut, fallback = range_mask(sa_c[first], ss_c[first])
+    scores, scales = jax.vmap(lambda a, pr: score(a, pr, mask))(sa_c, preds)
     best = jnp.argmin(scores)  # all inf -> 0, the data's own Rd
-    sa0, ss0, scale0 = sa_c[best], ss_c[best], jnp.where(jnp.isfinite(scales[best]) & (scales[best] > 0),
-                                                         scales[best], 1.0)
-    theta0 = [jnp.log(sa0), jnp.log(ss0)]
+    # The other starts: the basins of the score over the (albedo, l_d) grid are its local minima (no neighbour of
+    # the 8 lower); the ones of lowest and of highest albedo within a factor LOCAL_MIN_RATIO of the best score.
+    # (Nearest-neighbour alternatives are not enough: with 1% noise on a skin-like channel the best candidate, its
+    # neighbours and the best candidates a factor 4 away in albedo all led to one wrong minimum; the truth's basin
+    # showed as a local minimum at 3x the best score, 30x lower in albedo.)
+    grid = scores.reshape(len(ONE_MINUS_ALBEDO), len(LD_FACTORS))
+    padded = jnp.pad(grid, 1, constant_values=jnp.inf)
+    n_a, n_l = grid.shape
+    neighbours = jnp.stack([padded[1 + da:1 + da + n_a, 1 + dl:1 + dl + n_l]
+                            for da in (-1, 0, 1) for dl in (-1, 0, 1) if (da, dl) != (0, 0)])
+    local = (jnp.all(grid <= neighbours, axis=0) & jnp.isfinite(grid)).reshape(-1)
+    local = local & (scores <= LOCAL_MIN_RATIO * scores[best])
+    lowest = jnp.argmax(jnp.where(local, om_c, -jnp.inf))  # the lowest albedo (largest 1 - alpha')
+    highest = jnp.argmin(jnp.where(local, om_c, jnp.inf))
+    lowest = jnp.where(local[lowest], lowest, best)
+    highest = jnp.where(local[highest], highest, best)
+    picks = jnp.stack([best, lowest, highest])
+    sa0, ss0 = sa_c[picks], ss_c[picks]
+    sc = scales[picks]
+    sc = jnp.where(jnp.isfinite(sc) & (sc > 0), sc, 1.0)
+    ratio_raised = jnp.zeros((), bool)
+    if model.ratio_min is not None:
+        # Clamp the starts into the model's validity range sigma_a / sigma_s' >= ratio_min (said in the notes).
+        rmin = float(model.ratio_min(cfg.static))
+        low = sa0 < rmin * ss0
+        ratio_raised = low[0]
+        sa0 = jnp.where(low, rmin * ss0, sa0)
+    cols = [jnp.log(sa0), jnp.log(ss0)]
     if cfg.relative:
-        theta0.append(jnp.log(scale0))
+        cols.append(jnp.log(sc))
     if cfg.free_eta:
-        theta0.append(jnp.log(eta))
-    theta0 = jnp.stack(theta0)
-    # Fit range: r >= r_min_lu * l_u at the start (the diffusion models, r_min_lu = 1, fail nearer the source) when
-    # ``auto``, else the user's r_min (a traced flag, so both share one compilation).
-    r_cut = jnp.where(auto, r_min_lu / (sa0 + ss0), r_lo)
-    mask = in_range & (r >= r_cut)[None, :]
-    fallback = jnp.sum(mask) <= p
-    mask = jnp.where(fallback, in_range, mask)
-    return theta0, mask, r_cut, fallback
+        cols.append(jnp.broadcast_to(jnp.log(eta), sa0.shape))
+    theta0 = jnp.stack(cols, axis=1)
+    return theta0, mask, r_cut, (slope_failed, fallback, ratio_raised)
 
 
-# --- Stage 3 ------------------------------------------------------------------------------------------------------
-def solve(theta0, mask, r, y, se, eta, d, cfg: Config):
-    """Least squares from ``theta0`` on ``mask``; returns a dict of per-problem arrays (estimates, errors, status)."""
+# --- 3. Solvers -----------------------------------------------------------------------------------------------------
+_RUNNING, _CONVERGED, _MAX_STEPS, _NONFINITE, _SLOW = 0, 1, 2, 3, 4  # _SLOW: stopped by the reduction test
+
+
+class LMState(NamedTuple):
+    """Levenberg-Marquardt state of one problem (all arrays, so that batches can be gathered and scattered)."""
+
+    theta: jax.Array  # (p,)
+    lam: jax.Array  # damping
+    nu: jax.Array  # damping growth on rejection (Nielsen)
+    steps: jax.Array  # iterations done
+    status: jax.Array  # _RUNNING, _CONVERGED, _MAX_STEPS, _NONFINITE, _SLOW
+    limit: jax.Array  # iteration cap of this problem
+
+
+def lm_init(theta0, limit) -> LMState:
+    # Every field derived from theta0, so that under vmap the whole carry is batched from the start: the while
+    # loop's batching rule then traces its body once instead of twice (a fixpoint over the carry's batched-ness).
+    zero = 0.0 * theta0[0]
+    izero = zero.astype(jnp.int32)
+    return LMState(theta0, zero + LM_LAMBDA0, zero + 2.0, izero, izero + _RUNNING,
+                   izero + jnp.asarray(limit, jnp.int32))
+
+
+def step_limits(n_starts: int, cfg: Config):
+    """Iteration caps of the starts: ``max_steps`` for the first, ``min(max_steps, ALT_MAX_STEPS)`` for the others
+    (they only test for another basin; one that crawls is abandoned rather than holding up a batch)."""
+    return jnp.asarray([cfg.max_steps] + [min(cfg.max_steps, ALT_MAX_STEPS)] * (n_starts - 1), jnp.int32)
+
+
+def _linearise(theta, args):
+    res = lambda th: residuals(th, args)  # noqa: E731
+    J, rr = jax.jacfwd(lambda th: (res(th), res(th)), has_aux=True)(theta)
+    return rr, J
+
+
+def lm_step(state: LMState, args, cfg: Config) -> LMState:
+    """One Levenberg-Marquardt iteration (a no-op for a problem that has stopped)."""
+    theta = state.theta
+    rr, J = _linearise(theta, args)
+    f = jnp.sum(rr**2)
+    g = J.T @ rr
+    H = J.T @ J
+    p = theta.shape[0]
+    eye = jnp.eye(p, dtype=theta.dtype)
+    dg = jnp.maximum(jnp.diag(H), jnp.finfo(theta.dtype).tiny)
+    # Gauss-Newton step (undamped): below the tolerance in every log-parameter -> stationary, stop.
+    gn = jnp.linalg.solve(H + 1e-300 * eye, -g)
+    tol = cfg.atol + cfg.rtol * jnp.abs(theta)
+    converged = jnp.all(jnp.isfinite(gn)) & jnp.all(jnp.abs(gn) <= tol)
+    # Damped step (Marquardt's scaling diag(J^T J)), and the undamped one: whichever lowers the cost more is taken
+    # (near the minimum that is the Gauss-Newton step, so the last steps converge quadratically and a stop by the
+    # reduction test below leaves no damping error behind).
+    delta = jnp.linalg.solve(H + state.lam * jnp.diag(dg), -g)
+    # Both trials in one batched evaluation (one copy of the model in the compiled loop).
+    ft, ft_gn = jax.vmap(lambda dl: jnp.sum(residuals(theta + dl, args) ** 2))(jnp.stack([delta, gn]))
+    ft = jnp.where(jnp.isfinite(ft), ft, jnp.inf)
+    use_gn = jnp.isfinite(ft_gn) & (ft_gn < ft) & jnp.all(jnp.isfinite(gn))
+    # Within the cost's rounding: a Gauss-Newton step whose predicted reduction is below 1e-13 f cannot be judged by
+    # the cost (the sum of squares is only good to ~1e-15 relative); it is taken on the gradient's word, so the
+    # stationarity test above can be met (seen: 1% noise, 40 radii, stuck 1.6e-9 from the minimum in log sigma_a).
+    pred_gn = -(g @ gn)
+    blind = jnp.all(jnp.isfinite(gn)) & (pred_gn <= 1e-13 * f)
+    use_gn = use_gn | blind
+    delta, ft = jnp.where(use_gn, gn, delta), jnp.where(use_gn, jnp.where(blind, jnp.minimum(ft_gn, f), ft_gn), ft)
+    trial = theta + delta
+    accept = jnp.isfinite(ft) & ((ft < f) | blind) & jnp.all(jnp.isfinite(delta))
+    pred = -(2.0 * delta @ g + delta @ H @ delta)
+    # Or MINPACK's ftol test on a damped step that the Gauss-Newton step could not beat: its actual and predicted
+    # relative reductions of the cost are both below rtol. It ends slow crawls along curved valleys (e.g. towards
+    # sigma_a -> 0 from a wrong start), where Gauss-Newton fails; near a regular minimum the Gauss-Newton step wins
+    # and the test above stops with the full precision.
+    stop = accept & ~use_gn & (f - ft <= cfg.rtol * f) & (pred <= cfg.rtol * f)
+    rho = (f - ft) / jnp.where(pred > 0, pred, 1.0)
+    lam = jnp.where(accept, state.lam * jnp.maximum(1.0 / 3.0, 1.0 - (2.0 * rho - 1.0) ** 3), state.lam * state.nu)
+    nu = jnp.where(accept, 2.0, 2.0 * state.nu)
+    lam = jnp.clip(lam, 1e-12, 1e16)
+    new_theta = jnp.where(accept & ~converged, trial, theta)
+    steps = state.steps + 1
+    bad = ~jnp.isfinite(f)
+    status = jnp.where(converged, _CONVERGED, jnp.where(stop, _SLOW, jnp.where(bad, _NONFINITE,
+                       jnp.where(steps >= state.limit, _MAX_STEPS, _RUNNING))))
+    new = LMState(new_theta, lam, jnp.minimum(nu, 1e8), steps, status.astype(jnp.int32), state.limit)
+    running = state.status == _RUNNING
+    return jax.tree_util.tree_map(lambda a, b: jnp.where(running, a, b), new, state)
+
+
+def status_result(status):
+    """``optimistix.RESULTS`` of LM status codes (any shape)."""
+    R = optx.RESULTS
+
+    def one(st):
+        return R.where((st == _CONVERGED) | (st == _SLOW), R.successful,
+                       R.where(st == _MAX_STEPS, R.nonlinear_max_steps_reached, R.nonlinear_divergence))
+
+    status = jnp.asarray(status)
+    out = jax.vmap(one)(status.reshape(-1))
+    return jax.tree_util.tree_map(lambda x: x.reshape(status.shape), out)
+
+
+def lm_solve(theta0, limit, args, cfg: Config):
+    """``(theta, result, steps, stationary)``: the LM loop from ``theta0`` until it stops (one problem);
+    ``stationary``: stopped by the Gauss-Newton test (not by the reduction test)."""
+    state = jax.lax.while_loop(lambda s: s.status == _RUNNING, lambda s: lm_step(s, args, cfg),
+                               lm_init(theta0, limit))
+    return state.theta, status_result(state.status), state.steps, state.status == _CONVERGED
+
+
+def lm_block(state: LMState, args, cfg: Config, n_steps: int) -> LMState:
+    """``n_steps`` iterations (fewer if the problem stops) of one problem; batches vmap it."""
+    TRACES["lm_block"] += 1
+    return jax.lax.fori_loop(0, n_steps, lambda _, s: lm_step(s, args, cfg), state)
+
+
+def optx_solve(theta0, limit, args, cfg: Config):
+    """``(theta, result, steps, stationary)`` with an Optimistix solver of the registry."""
+    solver = resolve_solver(cfg.solver).make(rtol=cfg.rtol, atol=cfg.atol)
+    fn = lambda th, a: residuals(th, (*a, cfg))  # noqa: E731  (cfg is static, not an argument leaf)
+    del limit  # Optimistix's cap is static: every start gets max_steps
+    sol = optx.least_squares(fn, solver, theta0, args=args[:-1], max_steps=cfg.max_steps, throw=False)
+    return sol.value, sol.result, sol.stats["num_steps"], sol.result == optx.RESULTS.successful
+
+
+def solve_starts(theta0s, mask, r, y, se, eta, d, cfg: Config):
+    """Solve from every start ``(S, p)``: ``(theta (S, p), result (S,), steps (S,), stationary (S,))``."""
     TRACES["solve"] += 1
     w, _ = weights(y, se, cfg)
     args = (r, y, w, mask, eta, d, cfg)
-    solver = resolve_solver(cfg.solver).make(rtol=cfg.rtol, atol=cfg.atol)
-    fn = lambda th, a: residuals(th, (*a, cfg))  # noqa: E731  (cfg is static, not an argument leaf)
-    sol = optx.least_squares(fn, solver, theta0, args=args[:-1], max_steps=cfg.max_steps, throw=False)
-    theta = sol.value
+    one = lm_solve if cfg.native else optx_solve
+    return jax.vmap(lambda th, lim: one(th, lim, args, cfg))(theta0s, step_limits(theta0s.shape[0], cfg))
+
+
+# --- 4. Choice among the starts, covariance, suspect checks --------------------------------------------------------
+def finish(thetas, results, steps, stationary, mask, r, y, se, eta, d, cfg: Config):
+    """The fit from the solutions of the starts (``thetas (S, p)``, ``results``, ``steps``, ``stationary (S,)``): a
+    dict of estimates, standard errors, status and the suspect-fit checks.
+
+    The chosen solution is the converged one of lowest cost (a stationary one wins a tie to 1e-9: costs at the float64
+    floor of noisy data agree to ~1e-15 while the parameters of a stop by the reduction test may differ by 1e-9).
+    Suspect (``suspect`` > 0, a bit field):
+
+    - 1, chi^2: standard errors were given for every fitted point and the reduced chi^2 exceeds
+      ``1 + CHI2_SIGMAS sqrt(2 / dof)`` (the residuals are larger than the noise: a wrong minimum or a wrong model);
+    - 2, tie: another start converged to a different minimum (more than ``ALT_SEPARATION`` and 3 standard errors
+      apart in ``log sigma_a`` or ``log sigma_s'``) whose cost is within ``ALT_DCHI2`` units of chi^2 of the chosen
+      one, in the fit's own residual variance: the data do not pick one;
+    - 4, structure: no standard errors were given, the residuals' lag-1 autocorrelation along ``r`` exceeds
+      ``STRUCTURE_RHO`` and their rms exceeds ``STRUCTURE_RMS``: a smooth misfit (a wrong minimum, or a model that
+      does not describe the data), not noise.
+    """
+    TRACES["finish"] += 1
+    w, _ = weights(y, se, cfg)
+    args = (r, y, w, mask, eta, d, cfg)
+    res_all = jax.vmap(lambda th: residuals(th, args))(thetas)  # (S, K N): one model evaluation for all starts
+    costs = jnp.sum(res_all**2, axis=1)
+    ok = (results == optx.RESULTS.successful) & jnp.isfinite(costs)
+    key = jnp.where(ok, costs * jnp.where(stationary, 1.0, 1.0 + 1e-9),
+                    jnp.where(jnp.isfinite(costs), 1e300 + costs, jnp.inf))
+    best = jnp.argmin(key)
+    theta = thetas[best]
     sa, ss, scale, eta_hat = unpack(theta, eta, cfg)
-    out = {"sigma_a": sa, "sigma_s_prime": ss, "scale": scale, "eta": eta_hat, "result": sol.result,
-           "iterations": sol.stats["num_steps"]}
+    out = {"sigma_a": sa, "sigma_s_prime": ss, "scale": scale, "eta": eta_hat,
+           "result": jax.tree_util.tree_map(lambda x: x[best], results),
+           
+           "iterations": jnp.sum(steps)}
     out.update(covariance(theta, args, cfg))
+    # Suspect checks.
+    p = cfg.n_params
+    n = out["n_points"]
+    dof = jnp.maximum(n - p, 1.0)
+    all_se = jnp.all(jnp.where(mask, se > 0.0, True))
+    chi2_bad = all_se & (out["reduced_chi2"] > 1.0 + CHI2_SIGMAS * jnp.sqrt(2.0 / dof))
+    s2 = jnp.maximum(out["reduced_chi2"], jnp.finfo(theta.dtype).tiny)
+    se_log = jnp.stack([out["sigma_a_stderr"] / sa, out["sigma_s_prime_stderr"] / ss])
+    sep = jnp.abs(thetas[:, :2] - theta[None, :2])  # (S, 2)
+    different = jnp.any((sep > ALT_SEPARATION) & (sep > 3.0 * se_log[None, :]), axis=1)
+    tie = ok & different & ((costs - costs[best]) <= ALT_DCHI2 * s2)
+    # Without standard errors there is no noise level to compare with; instead the residuals' lag-1 autocorrelation
+    # along r: near 0 for noise (sd 1 / sqrt(n)), near 1 for the smooth misfit of a wrong minimum or a wrong model.
+    # Only above a relative misfit of STRUCTURE_RMS (float64 rounding in noise-free fits is far below it).
+    res = res_all[best].reshape(mask.shape)  # (K, N)
+    lag = jnp.sum(jnp.where(mask[:, 1:] & mask[:, :-1], res[:, 1:] * res[:, :-1], 0.0))
+    rho1 = lag / jnp.maximum(jnp.sum(res**2), jnp.finfo(theta.dtype).tiny)
+    rms = jnp.sqrt(jnp.sum(res**2) / jnp.maximum(n, 1.0))
+    structured = ~all_se & (rho1 > STRUCTURE_RHO) & (rms > STRUCTURE_RMS)
+    out["suspect"] = (chi2_bad.astype(jnp.int32) + 2 * jnp.any(tie).astype(jnp.int32)
+                      + 4 * structured.astype(jnp.int32))
+    out["residual_autocorrelation"] = rho1
+    # The best other start's solution and its cost relative to the chosen one (inf if it did not converge).
+    other = jnp.where(jnp.arange(thetas.shape[0]) == best, jnp.inf, key)
+    j = jnp.argmin(other)
+    out["alt_sigma_a"], out["alt_sigma_s_prime"] = jnp.exp(thetas[j, 0]), jnp.exp(thetas[j, 1])
+    out["alt_cost_ratio"] = jnp.where(ok[j], costs[j] / jnp.maximum(costs[best], jnp.finfo(theta.dtype).tiny),
+                                      jnp.inf)
     return out
 
 
 def covariance(theta, args, cfg: Config):
     """Standard errors from ``J^T J`` at the solution, scaled by the residual variance ``SSR / (n - p)``."""
     th = jax.lax.stop_gradient(theta)
-    res = residuals(th, args)
-    J = jax.jacfwd(residuals)(th, args)  # (K N, p), in the log-parameters
+    res, J = _linearise(th, args)  # J: (K N, p), in the log-parameters
     ssr = jnp.sum(res**2)
     n = jnp.sum(args[3]).astype(res.dtype)
     p = cfg.n_params
@@ -252,8 +490,18 @@ def covariance(theta, args, cfg: Config):
     return out
 
 
+def fit(r, y, se, eta, d, r_lo, r_hi, auto, cfg: Config):
+    """The whole fit of one problem in one traced function (models without a per-solution static setting):
+    starts, solves and :func:`finish`. Returns ``(out, theta0, r_cut, flags)``."""
+    TRACES["fit"] += 1
+    theta0, mask, r_cut, flags = starts(r, y, se, eta, d, r_lo, r_hi, auto, cfg)
+    sol = solve_starts(theta0, mask, r, y, se, eta, d, cfg)
+    return finish(*sol, mask, r, y, se, eta, d, cfg), theta0, mask, r_cut, flags
+
+
 def solve_params(theta0, mask, r, y, se, eta, d, cfg: Config):
-    """The fitted ``(sigma_a, sigma_s')`` only: what :func:`fitting.fit_jacobian_wrt_data` differentiates."""
+    """The fitted ``(sigma_a, sigma_s')`` only: what :func:`fitting.fit_jacobian_wrt_data` differentiates (an
+    Optimistix solve with its implicit adjoint, started at the solution)."""
     w, _ = weights(y, se, cfg)
     solver = resolve_solver(cfg.solver).make(rtol=cfg.rtol, atol=cfg.atol)
     fn = lambda th, a: residuals(th, (*a, cfg))  # noqa: E731
@@ -262,4 +510,5 @@ def solve_params(theta0, mask, r, y, se, eta, d, cfg: Config):
     return jnp.stack([sa, ss])
 
 
-__all__ = ["Config", "TRACES", "data_guess", "initial_guess", "predict", "solve", "solve_params"]
+__all__ = ["Config", "LMState", "TRACES", "data_guess", "finish", "fit", "lm_block", "lm_init", "lm_solve",
+           "predict", "solve_params", "solve_starts", "starts"]

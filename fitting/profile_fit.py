@@ -28,6 +28,8 @@ import jax.numpy as jnp
 import numpy as np
 
 import jaxsss
+from jaxsss._validate import trusted_traces
+from jaxsss.fresnel import resolve_fresnel_method
 from fitting import _kernel as K
 from fitting.io import ProfileData
 from fitting.models import resolve_model
@@ -131,19 +133,23 @@ class _Problem:
             if thickness is not None:
                 raise ValueError(f"{owner}(thickness=...) applies to slab models only, not model={model.name!r}")
             self.d = np.ones(B * C)
-        lo = -np.inf if r_min is None else float(_as_array(r_min, "r_min", owner))
-        hi = np.inf if r_max is None else float(_as_array(r_max, "r_max", owner))
-        if not lo < hi:
-            raise ValueError(f"{owner}(r_min={lo:g}, r_max={hi:g}): r_min must be below r_max")
-        self.r_lo, self.r_hi = np.full(B * C, lo), np.full(B * C, hi)
+        # r_min / r_max: scalars, or (new in issue 18) arrays broadcasting to (profiles, channels) like eta.
+        lo = np.full(B * C, -np.inf) if r_min is None else self._per_problem(r_min, "r_min", lo_open=None)
+        hi = np.full(B * C, np.inf) if r_max is None else self._per_problem(r_max, "r_max", lo_open=None)
+        if np.any(lo >= hi):
+            i = int(np.argmax(lo >= hi))
+            raise ValueError(f"{owner}(r_min={lo[i]:g}, r_max={hi[i]:g}): r_min must be below r_max")
+        self.r_lo, self.r_hi = lo, hi
         self.auto = np.full(B * C, r_min is None)
-        inside = (r >= lo) & (r <= hi)
-        if inside.sum() < 3:
-            raise ValueError(f"{owner}(r_min={lo:g}, r_max={hi:g}): only {int(inside.sum())} radii in range; need >= 3")
+        inside = ((r[None, :] >= lo[:, None]) & (r[None, :] <= hi[:, None])).sum(axis=1)
+        if np.any(inside < 3):
+            i = int(np.argmin(inside))
+            raise ValueError(f"{owner}(r_min={lo[i]:g}, r_max={hi[i]:g}): only {int(inside[i])} radii in range; "
+                             "need >= 3")
 
     def _per_problem(self, x, name, lo_open):
         arr = _as_array(x, name, self.owner)
-        if np.any(arr <= lo_open):
+        if lo_open is not None and np.any(arr <= lo_open):
             raise ValueError(f"{self.owner}({name}={arr[arr <= lo_open].flat[0]:g}) is outside the allowed range (0, inf)")
         try:
             full = np.broadcast_to(arr, (self.B, self.C))
@@ -168,29 +174,28 @@ def _mesh(n_problems):
     return jax.make_mesh((len(devices),), ("batch",), axis_types=(jax.sharding.AxisType.Auto,), devices=devices)
 
 
+_STAGES = {"fit": K.fit, "starts": K.starts, "solve": K.solve_starts, "finish": K.finish}
+
+
 @lru_cache(maxsize=64)
 def _compiled(stage: str, cfg: K.Config):
-    """The jitted, vmapped stage. Sharding needs no code of its own: :func:`_run` places the problem axis of the
-    inputs over a device mesh and jit's SPMD partitioner splits the computation accordingly."""
-    fn = {"data_guess": K.data_guess, "initial_guess": K.initial_guess, "solve": K.solve}[stage]
-
-    def batched(r, *per_problem):
-        if stage == "data_guess":
-            return jax.vmap(lambda *a: fn(r, *a, cfg))(*per_problem)
-        return jax.vmap(lambda *a: _call(fn, stage, r, a, cfg))(*per_problem)
-
-    return jax.jit(batched)
+    """The jitted, vmapped stage (``r`` shared, every other argument per problem). Sharding needs no code of its
+    own: :func:`_run` places the problem axis of the inputs over a device mesh and jit's SPMD partitioner splits the
+    computation accordingly."""
+    fn = _STAGES[stage]
+    return jax.jit(lambda r, *per_problem: jax.vmap(lambda *a: fn(*_order(stage, r, a), cfg))(*per_problem))
 
 
-def _call(fn, stage, r, a, cfg):
-    if stage == "initial_guess":
-        y, se, eta, d, r_lo, r_hi, auto, rd, ld = a
-        return fn(r, y, se, eta, d, r_lo, r_hi, auto, rd, ld, cfg)
-    theta0, mask, y, se, eta, d = a
-    return fn(theta0, mask, r, y, se, eta, d, cfg)
+def _order(stage, r, a):
+    """The kernel functions take ``r`` after the per-problem start/solution arguments (solve, finish) or first."""
+    if stage == "solve":
+        return (a[0], a[1], r, *a[2:])
+    if stage == "finish":
+        return (*a[:5], r, *a[5:])
+    return (r, *a)
 
 
-def _bucket(n_problems: int, multiple: int) -> int:
+def _bucket(n_problems: int, multiple: int = 1) -> int:
     """The padded problem count: a power of two up to 64 (at least 4), then a multiple of 64; and a multiple of
     ``multiple`` (the device count). Few distinct shapes mean few compilations: one profile of 1-4 channels, or a
     handful of profiles, all reuse one compiled fit; the padding costs at most 2x on tiny batches and < 1% on big ones."""
@@ -201,25 +206,109 @@ def _bucket(n_problems: int, multiple: int) -> int:
 def _run(stage, cfg, shard, r, *per_problem):
     """Run a stage over all problems. The problem axis is padded (copies of the last problem, see :func:`_bucket`);
     with several devices (and ``shard``) it is placed with a :class:`jax.sharding.NamedSharding` over a 1-D mesh
-    (``r`` replicated) and jit's SPMD partitioner splits the work. The batched solver loops only synchronise on their
-    common stopping test."""
-    P_ = per_problem[0].shape[0]
+    (``r`` replicated) and jit's SPMD partitioner splits the work."""
+    # Padding and unpadding in NumPy: each eager jnp op would compile a small program of its own in a new process.
+    per_problem = jax.tree_util.tree_map(np.asarray, per_problem)
+    P_ = jax.tree_util.tree_leaves(per_problem)[0].shape[0]
     mesh = _mesh(P_) if shard in (None, True) else None
     n_dev = 1 if mesh is None else mesh.size
     pad = _bucket(P_, n_dev) - P_
     if pad:
-        per_problem = tuple(jnp.concatenate([x, jnp.repeat(x[-1:], pad, axis=0)]) for x in per_problem)
-    r = jnp.asarray(r)
+        per_problem = jax.tree_util.tree_map(lambda x: np.concatenate([x, np.repeat(x[-1:], pad, axis=0)]),
+                                             per_problem)
+    r = np.asarray(r)
     if mesh is not None:
         from jax.sharding import NamedSharding
         from jax.sharding import PartitionSpec as P
 
         r = jax.device_put(r, NamedSharding(mesh, P()))
-        per_problem = tuple(jax.device_put(x, NamedSharding(mesh, P("batch"))) for x in per_problem)
-    out = _compiled(stage, cfg)(r, *per_problem)
-    if mesh is not None:  # gather to the host (the next stage reshards)
-        out = jax.tree_util.tree_map(lambda x: jnp.asarray(np.asarray(x)), out)
-    return jax.tree_util.tree_map(lambda x: x[:P_], out)  # drop the padding
+        per_problem = jax.tree_util.tree_map(lambda x: jax.device_put(x, NamedSharding(mesh, P("batch"))),
+                                             per_problem)
+    with trusted_traces():  # inputs validated on the host: no host callbacks, so the persistent cache can store it
+        out = _compiled(stage, cfg)(r, *per_problem)
+    return jax.tree_util.tree_map(lambda x: np.asarray(x)[:P_], out)  # drop the padding
+
+
+# Batches of more than FUSED_MAX problems (profiles x channels) run the LM loop in blocks of BLOCK_STEPS iterations
+# over at most SLOTS problems at a time; a converged problem leaves its slot and the next start takes it, so the
+# batch costs about its mean iteration count, not its largest (issue 18: 143 iterations against a mean of 18.5).
+FUSED_MAX = 64
+SLOTS = 512
+BLOCK_STEPS = 8
+
+
+@lru_cache(maxsize=16)
+def _compiled_block(cfg: K.Config):
+    def block(r, state, pidx, y, w, mask, eta, d):
+        def one(st, i):
+            return K.lm_block(st, (r, y[i], w[i], mask[i], eta[i], d[i], cfg), cfg, BLOCK_STEPS)
+
+        return jax.vmap(one)(state, pidx)
+
+    return jax.jit(block)
+
+
+def _solve_slots(cfg, r, theta0, mask, y, se, eta, d):
+    """The native LM from every start of every problem, ``theta0 (P, S, p)``, in slot blocks (see :data:`SLOTS`):
+    ``(thetas (P, S, p), results (P, S), steps (P, S), stationary (P, S))``.
+
+    Slots hold problems; after each block of :data:`BLOCK_STEPS` iterations the host records the stopped ones and
+    refills their slots from the queue. When the queue is empty and at most a quarter of the slots still run, the
+    survivors move to a block a quarter of the width (a power of two, at least 8), so the tail of slow problems does
+    not run at the full width."""
+    P_, S, p = theta0.shape
+    Q = P_ * S
+    starts0 = np.asarray(theta0).reshape(Q, p)
+    limits0 = np.tile(np.asarray(K.step_limits(S, cfg)), P_)
+    w = jax.vmap(lambda a, b: K.weights(a, b, cfg)[0])(y, se)
+    n = min(_bucket(Q), SLOTS)
+    slot_q = np.full(n, -1)
+    theta = np.zeros((n, p))
+    lam, nu = np.full(n, K.LM_LAMBDA0), np.full(n, 2.0)
+    steps, status = np.zeros(n, np.int32), np.full(n, K._CONVERGED, np.int32)
+    limit = np.ones(n, np.int32)
+    out_theta, out_steps, out_status = np.zeros((Q, p)), np.zeros(Q, np.int32), np.zeros(Q, np.int32)
+    nxt = 0
+    r = jnp.asarray(r)
+    while True:
+        # Refill the free slots from the queue.
+        free = np.flatnonzero(slot_q < 0)
+        take = min(free.size, Q - nxt)
+        if take:
+            f = free[:take]
+            slot_q[f] = np.arange(nxt, nxt + take)
+            theta[f], lam[f], nu[f], steps[f], status[f] = starts0[nxt:nxt + take], K.LM_LAMBDA0, 2.0, 0, K._RUNNING
+            limit[f] = limits0[nxt:nxt + take]
+            nxt += take
+        active = np.flatnonzero(slot_q >= 0)
+        if active.size == 0:
+            break
+        if nxt == Q and active.size <= n // 4 and n > 8:
+            # Compact the survivors into a narrower block.
+            m = max(8, n // 4)
+            keep = np.concatenate([active, np.flatnonzero(slot_q < 0)[:m - active.size]])
+            slot_q, theta, lam, nu, steps, status, limit = (a[keep] for a in (slot_q, theta, lam, nu, steps, status,
+                                                                              limit))
+            n = m
+        state = K.LMState(*(jnp.asarray(a) for a in (theta, lam, nu, steps, status, limit)))
+        with trusted_traces():
+            state = _compiled_block(cfg)(r, state, jnp.asarray(np.maximum(slot_q, 0) // S), y, w, mask, eta, d)
+        theta, lam, nu, steps, status, limit = (np.array(x) for x in state)
+        done = (status != K._RUNNING) & (slot_q >= 0)
+        if np.any(done):
+            q = slot_q[done]
+            out_theta[q], out_steps[q], out_status[q] = theta[done], steps[done], status[done]
+            slot_q[done] = -1
+            status[done] = K._CONVERGED  # an empty slot is a frozen one
+    status = out_status.reshape(P_, S)
+    return (jnp.asarray(out_theta.reshape(P_, S, p)), K.status_result(status), jnp.asarray(out_steps.reshape(P_, S)),
+            jnp.asarray(status == K._CONVERGED))
+
+
+def _solve(cfg, shard, r, theta0, mask, y, se, eta, d):
+    if cfg.native and theta0.shape[0] * theta0.shape[1] > FUSED_MAX:
+        return _solve_slots(cfg, r, theta0, mask, y, se, eta, d)
+    return _run("solve", cfg, shard, r, theta0, mask, y, se, eta, d)
 
 
 # --- Public entry points ------------------------------------------------------------------------------------------
@@ -264,7 +353,7 @@ def _fit(owner, batched, r, R, R_stderr, T, T_stderr, *, eta, model, thickness, 
     t0 = time.perf_counter()
     model = resolve_model(model)
     resolve_solver(solver)
-    jaxsss.F_dr(1.5, fresnel)  # validates the F_dr method name (lists the valid ones)
+    resolve_fresnel_method(fresnel)  # validates the F_dr method name (lists the valid ones)
     r, R, R_stderr, T, T_stderr = _unpack_data(r, R, R_stderr, T, T_stderr)
     pb = _Problem(owner, r, R, R_stderr, T, T_stderr, eta, thickness, model, batched, r_min, r_max)
     if not (isinstance(max_steps, int) and max_steps >= 1):
@@ -282,54 +371,52 @@ def _fit(owner, batched, r, R, R_stderr, T, T_stderr, *, eta, model, thickness, 
         if np.allclose(step, step[0], rtol=1e-6) and abs(2.0 * pb.r[0] - step[0]) <= 1e-6 * step[0]:
             source_bin = True
             pb.r_lo = np.maximum(pb.r_lo, 0.5 * (pb.r[0] + pb.r[1]))
-    y, se, eta_p, d = (jnp.asarray(a) for a in (pb.y, pb.se, pb.eta, pb.d))
-    r_lo, r_hi = jnp.asarray(pb.r_lo), jnp.asarray(pb.r_hi)
+    y, se, eta_p, d = pb.y, pb.se, pb.eta, pb.d
+    per_problem = (y, se, eta_p, d, pb.r_lo, pb.r_hi, pb.auto)
     notes = []
-    # Stage 1: Rd and l_d from the data.
-    rd, ld, rd_clamped, slope_failed = _run("data_guess", cfg, shard, pb.r, y, se, eta_p, r_lo, r_hi)
-    if np.any(rd_clamped):
-        notes.append(f"initial guess: the profile's plane integral gave Rd outside {K.RD_CLAMP} for "
-                     f"{int(np.sum(rd_clamped))} fit(s); clamped into that range")
+    P_ = pb.B * pb.C
+    if model.prepare is None and not (cfg.native and P_ * K.N_STARTS > FUSED_MAX):
+        # One compiled call: starts, solves from every start, choice and checks.
+        out, theta0, mask, r_cut, flags = _run("fit", cfg, shard, pb.r, *per_problem)
+    else:
+        # Models with a static setting score the start candidates with a fixed, cheap one (ranking needs no
+        # precision, and a fixed value means one compilation for every data set).
+        cfg_s = cfg._replace(static=model.guess_static) if model.prepare is not None else cfg
+        theta0, mask, r_cut, flags = _run("starts", cfg_s, shard, pb.r, *per_problem)
+        # Solve; for models with a static setting, re-solve if the solution needs a larger one. The static setting is
+        # chosen at the start with a factor 2 margin (the solution usually needs no more, so one compilation
+        # serves); if the solution needs more, solve again from it and add the iterations.
+        steps_total = 0
+        start = theta0
+        for attempt in range(3):
+            if model.prepare is not None:
+                st = np.exp(np.asarray(start))
+                need = _prepare_static(model, pb, st[:, :, 0].max(1), st[:, :, 1].max(1), eta_p, fresnel, notes)
+                cfg = cfg._replace(static=min(max(2 * need, cfg.static if attempt else 0), model.static_cap))
+            thetas, results, steps, stationary = _solve(cfg, shard, pb.r, start, mask, y, se, eta_p, d)
+            steps_total = steps_total + steps
+            if model.prepare is None:
+                break
+            sol = np.exp(np.asarray(thetas))
+            need = max(_prepare_static(model, pb, sol[:, i, 0], sol[:, i, 1], eta_p, fresnel, notes)
+                       for i in range(sol.shape[1]))
+            if need <= cfg.static:
+                break
+            start = thetas
+        out = _run("finish", cfg, shard, pb.r, thetas, results, steps_total, stationary, mask, y, se, eta_p, d)
+    out = jax.block_until_ready(out)
+    seconds = time.perf_counter() - t0
+    slope_failed, fallback, ratio_raised = (np.asarray(f) for f in flags)
     if np.any(slope_failed):
         notes.append(f"initial guess: no usable far-field decay for {int(np.sum(slope_failed))} fit(s); l_d set to "
                      "the span of the radii")
-    # Stage 2: the start and the fit range. Models with a static setting rank the candidates with a fixed, cheap one
-    # (ranking needs no precision, and a fixed value means one compilation for every data set).
-    if model.prepare is not None:
-        cfg = cfg._replace(static=model.guess_static)
-    theta0, mask, r_cut, fallback = _run("initial_guess", cfg, shard, pb.r, y, se, eta_p, d, r_lo, r_hi,
-                                              jnp.asarray(pb.auto), rd, ld)
     ratio_min = None if model.ratio_min is None else float(model.ratio_min(cfg.static))
-    if ratio_min is not None:
-        # Clamp the start into the model's validity range sigma_a / sigma_s' >= ratio_min (said in the notes).
-        low = np.asarray(theta0[:, 0] - theta0[:, 1]) < np.log(ratio_min)
-        if np.any(low):
-            theta0 = theta0.at[:, 0].set(jnp.where(jnp.asarray(low), theta0[:, 1] + np.log(ratio_min), theta0[:, 0]))
-            notes.append(f"initial guess: sigma_a / sigma_s' raised to {ratio_min:.3g} (the {model.name} model's "
-                         f"validity limit) for {int(low.sum())} fit(s)")
+    if np.any(ratio_raised):
+        notes.append(f"initial guess: sigma_a / sigma_s' raised to {ratio_min:.3g} (the {model.name} model's "
+                     f"validity limit) for {int(ratio_raised.sum())} fit(s)")
     if np.any(fallback):
         notes.append(f"fit range: fewer than {cfg.n_params + 1} points beyond r_min for {int(np.sum(fallback))} "
                      "fit(s); all radii in [r_min, r_max] used there")
-    # Stage 3: solve; for models with a static setting, re-solve if the solution needs a larger one.
-    # The static setting is chosen at the start with a factor 2 margin (the solution usually needs no more, so one
-    # compilation serves); if the solution needs more, solve again from it and add the iterations.
-    iterations = 0
-    start = theta0
-    for attempt in range(3):
-        if model.prepare is not None:
-            need = _prepare_static(model, pb, jnp.exp(start[:, 0]), jnp.exp(start[:, 1]), eta_p, fresnel, notes)
-            cfg = cfg._replace(static=min(max(2 * need, cfg.static if attempt else 0), model.static_cap))
-        out = _run("solve", cfg, shard, pb.r, start, mask, y, se, eta_p, d)
-        iterations = iterations + out["iterations"]
-        if model.prepare is None:
-            break
-        need = _prepare_static(model, pb, out["sigma_a"], out["sigma_s_prime"], out["eta"], fresnel, notes)
-        if need <= cfg.static:
-            break
-        start = _theta(out, cfg)
-    out["iterations"] = iterations
-    out = jax.block_until_ready(out)
-    seconds = time.perf_counter() - t0
 
     if r_min is None:
         reason = "default: " + model.range_reason
@@ -337,8 +424,8 @@ def _fit(owner, batched, r, R, R_stderr, T, T_stderr, *, eta, model, thickness, 
             reason += ("; the first radius left out: the data look like centres of equal bins from r = 0, and the "
                        "first bin's average over the source is not the model's point value")
     else:
-        reason = f"user: r_min = {float(r_min):g} mm"
-    reason += "; " + ("r_max = all radii" if r_max is None else f"r_max = {float(r_max):g} mm")
+        reason = f"user: r_min = {_mm(r_min)}"
+    reason += "; " + ("r_max = all radii" if r_max is None else f"r_max = {_mm(r_max)}")
     if not all(pb.has_stderr):
         reason += "; points with data <= 0 left out (relative weights)"
     corr = np.asarray(out["correlation"])
@@ -364,11 +451,13 @@ def _fit(owner, batched, r, R, R_stderr, T, T_stderr, *, eta, model, thickness, 
         reduced_chi2=u(out["reduced_chi2"]), n_points=u(out["n_points"]), r_min=u(out["r_min"]),
         r_max=u(out["r_max"]), r_cut=u(r_cut), iterations=u(out["iterations"]),
         result=jax.tree_util.tree_map(u, out["result"]), condition_number=u(cond), identifiable=u(identifiable),
-        guess_sigma_a=u(np.exp(theta0[:, 0])), guess_sigma_s_prime=u(np.exp(theta0[:, 1])),
+        guess_sigma_a=u(np.exp(theta0[:, 0, 0])), guess_sigma_s_prime=u(np.exp(theta0[:, 0, 1])),
         thickness=u(pb.d) if model.needs_thickness else None, model=model.name, solver=solver,
         outputs=pb.outputs, relative=bool(relative), free_eta=bool(free_eta), range_reason=reason,
         notes=tuple(notes), seconds=seconds, static=cfg.static, fresnel=fresnel,
-        model_warnings=tuple(model_warnings),
+        model_warnings=tuple(model_warnings), suspect=u(out["suspect"]), alt_sigma_a=u(out["alt_sigma_a"]),
+        alt_sigma_s_prime=u(out["alt_sigma_s_prime"]), alt_cost_ratio=u(out["alt_cost_ratio"]),
+        residual_autocorrelation=u(out["residual_autocorrelation"]),
     )
     if warn:
         for text in res.warnings:
@@ -376,13 +465,9 @@ def _fit(owner, batched, r, R, R_stderr, T, T_stderr, *, eta, model, thickness, 
     return res
 
 
-def _theta(out, cfg):
-    cols = [jnp.log(out["sigma_a"]), jnp.log(out["sigma_s_prime"])]
-    if cfg.relative:
-        cols.append(jnp.log(out["scale"]))
-    if cfg.free_eta:
-        cols.append(jnp.log(out["eta"]))
-    return jnp.stack(cols, axis=1)
+def _mm(x) -> str:
+    a = np.asarray(x, dtype=np.float64)
+    return f"{float(a):g} mm" if a.ndim == 0 else f"{a.min():g}-{a.max():g} mm (per fit)"
 
 
 _DOC_ARGS = """
@@ -399,8 +484,8 @@ _DOC_ARGS = """
         thickness: slab thickness, mm (models that need it only), broadcasting like ``eta``.
         relative: the data carry an unknown positive scale, fitted per channel.
         free_eta: also fit ``eta`` (per channel).
-        r_min, r_max: fit range in mm. Default ``r_min``: one transport mean free path ``l_u`` at the initial
-            guess (``0.1 l_u`` for ``"mc"``); default ``r_max``: all radii.
+        r_min, r_max: fit range in mm, scalars or broadcasting like ``eta``. Default ``r_min``: one transport mean
+            free path ``l_u`` at the initial guess (``0.1 l_u`` for ``"mc"``); default ``r_max``: all radii.
         solver: :data:`fitting.SOLVERS` name (``"levenberg_marquardt"``, ``"gauss_newton"``, ``"dogleg"``).
         rtol, atol: solver tolerances (on the log-parameters and the residual norm).
         max_steps: iteration cap; fits that hit it report ``converged = False``.

@@ -11,7 +11,16 @@ import optimistix as optx
 
 import jaxsss
 
-__all__ = ["CORRELATION_LIMIT", "CONDITION_LIMIT", "ProfileFit"]
+__all__ = ["CORRELATION_LIMIT", "CONDITION_LIMIT", "SUSPECT_CHI2", "SUSPECT_STRUCTURE", "SUSPECT_TIE", "ProfileFit"]
+
+SUSPECT_CHI2 = 1
+"""Bit of :attr:`ProfileFit.suspect`: the reduced chi^2 exceeds the noise level of the given standard errors."""
+SUSPECT_TIE = 2
+"""Bit of :attr:`ProfileFit.suspect`: another start reached a different minimum of about the same cost."""
+SUSPECT_STRUCTURE = 4
+"""Bit of :attr:`ProfileFit.suspect`: no standard errors, and the residuals are a smooth misfit rather than noise."""
+CHI2_SIGMAS = 5.0
+"""The chi^2 check fires above ``1 + CHI2_SIGMAS sqrt(2 / dof)`` (chi^2 / dof has standard deviation sqrt(2 / dof))."""
 
 CORRELATION_LIMIT = 0.999
 """``|corr(sigma_a, sigma_s')|`` above this: the data do not separate the two parameters. Well-posed fits of absolute
@@ -57,6 +66,18 @@ class ProfileFit(eqx.Module):
             ``static`` is the model's static setting (the multipole's pair count, the ``mc`` model's ``(g, eta)``).
         model_warnings: warnings about the model's validity at the solution (e.g. the ``mc`` model's table range),
             included in :attr:`warnings`.
+        suspect: the suspect-fit checks per fit, a bit field (0: none fired): ``SUSPECT_CHI2`` (1) -- standard errors
+            were given and the reduced chi^2 is above ``1 + 5 sqrt(2 / dof)``: the residuals exceed the noise (a
+            wrong minimum or a model that does not describe the data); ``SUSPECT_TIE`` (2) -- another start converged
+            to a different minimum that fits as well (within 4 units of chi^2 in the fit's residual variance): the
+            data do not single out one answer; ``SUSPECT_STRUCTURE`` (4) -- no standard errors were given and the
+            residuals are a smooth misfit (lag-1 autocorrelation along r above 0.5, rms above 1e-6), not noise. A
+            suspect fit may still report ``converged``; :attr:`warnings` says
+            why it may be wrong and :attr:`reliable` is ``False``.
+        alt_sigma_a, alt_sigma_s_prime, alt_cost_ratio: the solution from the other start (the fit solves from two
+            starts of different albedo, :mod:`fitting._kernel`) and its cost over the chosen one's (``>= 1``; 1 when
+            both found the same minimum, ``inf`` if it did not converge).
+        residual_autocorrelation: lag-1 autocorrelation of the weighted residuals along r.
     """
 
     sigma_a: jax.Array
@@ -92,6 +113,11 @@ class ProfileFit(eqx.Module):
     static: object = eqx.field(static=True, default=None)
     fresnel: str = eqx.field(static=True, default="poly")
     model_warnings: tuple = eqx.field(static=True, default=())
+    suspect: jax.Array | None = None
+    alt_sigma_a: jax.Array | None = None
+    alt_sigma_s_prime: jax.Array | None = None
+    alt_cost_ratio: jax.Array | None = None
+    residual_autocorrelation: jax.Array | None = None
 
     @property
     def shape(self) -> tuple:
@@ -101,6 +127,19 @@ class ProfileFit(eqx.Module):
     def converged(self):
         """Boolean array: the solver reported success for each fit."""
         return np.asarray(self.result == optx.RESULTS.successful)
+
+    @property
+    def reliable(self):
+        """Boolean array: converged, identifiable, not suspect and inside the model's validity range (a fit to trust
+        without reading its warnings)."""
+        ok = self.converged & np.asarray(self.identifiable)
+        if self.suspect is not None:
+            ok = ok & (np.asarray(self.suspect) == 0)
+        return ok & (not self.model_warnings)
+
+    def _rho1(self, i):
+        return float("nan") if self.residual_autocorrelation is None else float(
+            np.asarray(self.residual_autocorrelation).reshape(-1)[i])
 
     def messages(self) -> list[str]:
         """The solver's status message per fit (flattened), ``"converged"`` on success."""
@@ -125,6 +164,36 @@ class ProfileFit(eqx.Module):
                 f"corr(sigma_a, sigma_s') = {corr[i]:.4f}, cond(J^T J) = {cond[i]:.3g}); the data fix only a "
                 "combination such as sigma_tr -- add absolute calibration, near-field radii, or fix a parameter"
             )
+        if self.suspect is not None:
+            sus = np.asarray(self.suspect).reshape(-1)
+            chi2 = np.asarray(self.reduced_chi2).reshape(-1)
+            n = np.asarray(self.n_points).reshape(-1)
+            for bit, what in ((SUSPECT_CHI2, "chi2"), (SUSPECT_TIE, "tie"), (SUSPECT_STRUCTURE, "structure")):
+                hit = (sus & bit) != 0
+                if not hit.any():
+                    continue
+                i = int(np.argmax(hit))
+                if what == "chi2":
+                    lim = 1.0 + CHI2_SIGMAS * np.sqrt(2.0 / max(n[i] - 2, 1))
+                    out.append(
+                        f"{int(hit.sum())} of {hit.size} fits are suspect: the residuals exceed the given standard "
+                        f"errors (first: fit {i}: reduced chi^2 = {chi2[i]:.3g} > {lim:.3g}); the solution may be a "
+                        "wrong minimum, or the model does not describe the data")
+                elif what == "structure":
+                    out.append(
+                        f"{int(hit.sum())} of {hit.size} fits are suspect: the residuals are a smooth misfit, not "
+                        f"noise (first: fit {i}: lag-1 autocorrelation {self._rho1(i):.2f}, rms relative misfit "
+                        f"{np.sqrt(chi2[i]):.2g}); the solution may be a wrong minimum, or the model does not describe "
+                        "the data -- give standard errors to test the fit against the noise")
+                else:
+                    alt_a = np.asarray(self.alt_sigma_a).reshape(-1)[i]
+                    alt_s = np.asarray(self.alt_sigma_s_prime).reshape(-1)[i]
+                    ratio = np.asarray(self.alt_cost_ratio).reshape(-1)[i]
+                    out.append(
+                        f"{int(hit.sum())} of {hit.size} fits are suspect: another start reached a different minimum "
+                        f"that fits as well (first: fit {i}: sigma_a = {alt_a:.4g}, sigma_s' = {alt_s:.4g} 1/mm at "
+                        f"{ratio:.4g}x the cost); the data do not single out one answer -- widen the radius range or "
+                        "add standard errors")
         out.extend(self.model_warnings)
         return out
 
@@ -183,6 +252,13 @@ class ProfileFit(eqx.Module):
             "notes": list(self.notes),
             "warnings": self.warnings,
         }
+        if self.suspect is not None:
+            d["suspect"] = ints(self.suspect)
+            d["reliable"] = np.asarray(self.reliable).tolist()
+            d["alt_sigma_a"] = jaxsss.json_ready(self.alt_sigma_a)
+            d["alt_sigma_s_prime"] = jaxsss.json_ready(self.alt_sigma_s_prime)
+            d["alt_cost_ratio"] = jaxsss.json_ready(self.alt_cost_ratio)
+            d["residual_autocorrelation"] = jaxsss.json_ready(self.residual_autocorrelation)
         if self.relative:
             d["scale"], d["scale_stderr"] = jaxsss.json_ready(self.scale), jaxsss.json_ready(self.scale_stderr)
         if self.free_eta:
@@ -206,6 +282,7 @@ class ProfileFit(eqx.Module):
             "iterations", "r_min", "r_max", "n_points", "reduced_chi2")}
         conv = self.converged.reshape(-1)
         n = conv.size
+        sus = np.zeros(n, int) if self.suspect is None else np.asarray(self.suspect).reshape(-1)
         header = ["fit", "sigma_a [1/mm]", "+-", "sigma_s' [1/mm]", "+-", "corr"]
         if self.relative:
             header.append("scale")
@@ -224,7 +301,8 @@ class ProfileFit(eqx.Module):
             if self.free_eta:
                 row.append(f"{flat['eta'][i]:.5g}")
             row += [f"{flat['r_min'][i]:.4g}-{flat['r_max'][i]:.4g}", str(int(flat["n_points"][i])),
-                    str(int(flat["iterations"][i])), "converged" if conv[i] else "NOT CONVERGED"]
+                    str(int(flat["iterations"][i])), "NOT CONVERGED" if not conv[i] else (
+                        "converged, SUSPECT" if sus[i] else "converged")]
             rows.append(row)
         widths = [max(len(h), *(len(r[j]) for r in rows)) for j, h in enumerate(header)]
         lines = [

@@ -1,15 +1,20 @@
 """Least-squares solvers for the fits, chosen by name from a validated registry (:data:`SOLVERS`).
 
-All are Optimistix solvers run through :func:`optimistix.least_squares` with the implicit adjoint, so fitted
-parameters are differentiable in the data by the implicit function theorem (:func:`fitting.fit_jacobian_wrt_data`).
+``gauss_newton`` and ``dogleg`` are Optimistix solvers run through :func:`optimistix.least_squares`; fitted parameters
+are differentiable in the data by the implicit function theorem (:func:`fitting.fit_jacobian_wrt_data`, with the
+Optimistix solver that ``make`` returns).
 
-- ``levenberg_marquardt`` (default): :class:`optimistix.LevenbergMarquardt` -- a trust region on the Gauss-Newton
-  step; robust from a rough start.
+- ``levenberg_marquardt`` (default): a small Levenberg-Marquardt loop of the fitting kernel
+  (:func:`fitting._kernel.lm_step`: Marquardt scaling, Nielsen damping, stop when the undamped Gauss-Newton step is
+  below ``atol + rtol |theta|``). It is a few array operations per iteration, so it compiles in a fraction of
+  Optimistix's time, and batches run it in blocks that retire converged problems (no waiting for the slowest). The
+  implicit derivative (:func:`fitting.fit_jacobian_wrt_data`) uses :class:`optimistix.LevenbergMarquardt`, started
+  at the solution.
 - ``gauss_newton``: :class:`optimistix.GaussNewton` -- undamped; fastest from a good start, may fail from a bad one.
 - ``dogleg``: :class:`optimistix.Dogleg` -- trust region mixing the Gauss-Newton and steepest-descent steps.
 
-Termination (Optimistix's Cauchy test): successive iterates and residual norms change by less than
-``atol + rtol * |value|`` in the max norm.
+Termination of the Optimistix solvers (their Cauchy test): successive iterates and residual norms change by less
+than ``atol + rtol * |value|`` in the max norm.
 """
 
 from __future__ import annotations
@@ -27,12 +32,14 @@ class LeastSquaresSolver(NamedTuple):
     name: str
     summary: str
     make: Callable
+    native: bool = False  # fits run fitting._kernel's batched LM loop; ``make`` serves fit_jacobian_wrt_data
 
 
 SOLVERS: dict[str, LeastSquaresSolver] = {
     s.name: s
     for s in (
-        LeastSquaresSolver("levenberg_marquardt", "Levenberg-Marquardt (optimistix; default)", optx.LevenbergMarquardt),
+        LeastSquaresSolver("levenberg_marquardt", "Levenberg-Marquardt (jaxsss's batched loop; default)",
+                           optx.LevenbergMarquardt, native=True),
         LeastSquaresSolver("gauss_newton", "Gauss-Newton (optimistix)", optx.GaussNewton),
         LeastSquaresSolver("dogleg", "Dogleg trust region (optimistix)", optx.Dogleg),
     )

@@ -4,23 +4,26 @@
 the dipole profile (per unit flux entering the medium). It rises monotonically from 0 at ``alpha' = 0`` to 1 at
 ``alpha' = 1``.
 
-Inversion. The paper uses "a few iterations of a simple secant root finder". We solve with Optimistix's Newton
-method in the unconstrained variable ``s``, where ``u = sqrt(3 (1 - alpha')) = sqrt(3) sigmoid(s)``:
+Inversion. The paper uses "a few iterations of a simple secant root finder". We solve with Newton's method (a plain
+loop, elementwise) in the unconstrained variable ``s``, where ``u = sqrt(3 (1 - alpha')) = sqrt(3) sigmoid(s)``:
 
 - both stiff ends stay well conditioned: ``1 - alpha' = sigmoid(s)^2`` is exact as ``Rd -> 1`` (where ``alpha' -> 1``
   and, at fixed ``l_d``, ``sigma_t' -> infinity``) and ``alpha' = sigmoid(-s) (1 + sigmoid(s))`` as ``Rd -> 0``;
 - the residual is ``log(-log Rd(s)) - log(-log Rd_target)``: linear in ``s`` as ``Rd -> 1`` and logarithmic as
   ``Rd -> 0``, and evaluated without cancellation, so ``u`` (and hence ``sigma_a = sigma_tr u / 3``) is accurate to
   about 1e-15 relative at ``Rd = 1 - 1e-12`` and ``alpha'`` to about 1e-14 at ``Rd = 1e-12``;
-- gradients flow through the implicit function theorem (``optimistix.ImplicitAdjoint``), so ``d alpha'/d Rd``
+- gradients flow through the implicit function theorem (a ``jax.custom_jvp`` on the solve), so ``d alpha'/d Rd``
   equals ``1 / (dRd/d alpha')`` without differentiating the iterations.
 """
 
 from __future__ import annotations
 
+from functools import partial
+
 import equinox as eqx
 import jax
 import jax.numpy as jnp
+import numpy as np
 import optimistix as optx
 
 from jaxsss import _config  # noqa: F401  (float64)
@@ -150,26 +153,68 @@ def _initial_s(log_L, A):
     return jnp.where(s_hi > s_lo, s_hi, s_lo)
 
 
-def _solve_scalar(log_L, A, rtol, atol, max_steps):
-    def residual(s, args):
-        target, A_ = args
-        # log(-log Rd(s)) - log(-log Rd): linear in s as Rd -> 1, logarithmic as Rd -> 0.
-        return jnp.log(_neg_log_rd_of_s(s, A_)) - target
-
-    solver = optx.Newton(rtol=rtol, atol=atol)
-    sol = optx.root_find(
-        residual, solver, _initial_s(log_L, A), args=(log_L, A), max_steps=max_steps, throw=False
-    )
-    return sol.value, sol.result, sol.stats["num_steps"]
+def _residual(s, log_L, A):
+    """``log(-log Rd(s)) - log(-log Rd)``: linear in ``s`` as ``Rd -> 1``, logarithmic as ``Rd -> 0``."""
+    return jnp.log(_neg_log_rd_of_s(s, A)) - log_L
 
 
-@eqx.filter_jit
+def _newton(log_L, A, rtol, atol, max_steps):
+    """Newton's method on :func:`_residual` from :func:`_initial_s`, elementwise: ``(s, converged, steps)``.
+
+    A plain loop of a few array operations (Optimistix's Newton compiled in about 3 s, this in a small fraction of
+    that; :func:`jaxsss.from_rd_ld` is on the path of every profile fit's start and of ``jaxsss reparam``). It stops
+    when every element's step is below ``atol + rtol |s|``; elements already there are frozen."""
+
+    def newton_step(s):
+        val, der = jax.jvp(lambda x: _residual(x, log_L, A), (s,), (jnp.ones_like(s),))
+        return val / der
+
+    def step(state):
+        s, it, done = state
+        ds = newton_step(s)
+        ok = jnp.abs(ds) <= atol + rtol * jnp.abs(s)
+        s_new = jnp.where(done | ~jnp.isfinite(ds), s, s - ds)
+        return s_new, it + jnp.where(done, 0, 1), done | ok | ~jnp.isfinite(ds)
+
+    def going(state):
+        _, it, done = state
+        return jnp.any(~done) & (jnp.max(it) < max_steps)
+
+    s0 = _initial_s(log_L, A)
+    init = (s0, jnp.zeros(s0.shape, jnp.int32), jnp.zeros(s0.shape, bool))
+    s, steps, _ = jax.lax.while_loop(going, step, init)
+    # Converged: the Newton step at the final point is (still) within the tolerance.
+    ds = newton_step(s)
+    conv = jnp.isfinite(s) & jnp.isfinite(ds) & (jnp.abs(ds) <= atol + rtol * jnp.abs(s))
+    return s, conv, steps
+
+
+@partial(jax.custom_jvp, nondiff_argnums=(2, 3, 4))
+def _solve_s(log_L, A, rtol, atol, max_steps):
+    return _newton(log_L, A, rtol, atol, max_steps)
+
+
+@_solve_s.defjvp
+def _solve_s_jvp(rtol, atol, max_steps, primals, tangents):
+    # Implicit function theorem on f(s; log_L, A) = 0: ds = -(f_logL dlog_L + f_A dA) / f_s, with f_logL = -1.
+    log_L, A = primals
+    dlog_L, dA = tangents
+    s, conv, steps = _solve_s(log_L, A, rtol, atol, max_steps)
+    _, f_s = jax.jvp(lambda x: _residual(x, log_L, A), (s,), (jnp.ones_like(s),))
+    _, f_A_dA = jax.jvp(lambda a: _residual(s, log_L, a), (A,), (dA,))
+    ds = (dlog_L - f_A_dA) / f_s
+    zero = lambda x: np.zeros(x.shape, jax.dtypes.float0)  # noqa: E731
+    return (s, conv, steps), (ds, zero(conv), zero(steps))
+
+
+@partial(jax.jit, static_argnums=(2, 3, 4))
 def _invert(Rd, A, rtol, atol, max_steps):
     log_L = jnp.log(-jnp.log(Rd))
     log_L, A = jnp.broadcast_arrays(log_L, A)
     shape = log_L.shape
-    solve = jax.vmap(lambda lL, a: _solve_scalar(lL, a, rtol, atol, max_steps))
-    s, result, steps = solve(log_L.reshape(-1), A.reshape(-1))
+    s, conv, steps = _solve_s(log_L, A, rtol, atol, max_steps)
+    R = optx.RESULTS
+    result = jax.vmap(lambda c: R.where(c, R.successful, R.nonlinear_max_steps_reached))(conv.reshape(-1))
     s = s.reshape(shape)
     sig = jax.nn.sigmoid(s)
     return RdInversion(

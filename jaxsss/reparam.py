@@ -17,6 +17,8 @@ which stays accurate at both stiff ends (``Rd -> 1``: ``u -> 0`` and ``sigma_t' 
 
 from __future__ import annotations
 
+from functools import partial
+
 import equinox as eqx
 import jax
 import optimistix as optx
@@ -70,6 +72,15 @@ def from_rd_ld(rd, ld, eta, g=None, *, fresnel: str = "poly", rtol: float | None
     rd = check_range(rd, "rd", 0.0, 1.0, lo_open=True, hi_open=True, owner="from_rd_ld")
     ld = check_range(ld, "ld", 0.0, None, lo_open=True, owner="from_rd_ld")
     eta = check_range(eta, "eta", 0.0, None, lo_open=True, owner="from_rd_ld")
+    inv, sigma_a, sigma_s_prime = _eq16(rd, ld, eta, fresnel, rtol)
+    medium = Medium(sigma_a, sigma_s_prime, eta, g, fresnel=fresnel)
+    return Reparameterisation(medium=medium, alpha_prime=inv.alpha_prime, rd=rd, ld=ld, result=inv.result)
+
+
+@partial(jax.jit, static_argnums=(3, 4))
+def _eq16(rd, ld, eta, fresnel, rtol):
+    """The inversion and Eq. 16 as one compiled program (validated inputs): a process that converts one value
+    compiles once (and JAX's persistent cache keeps it) instead of dispatching a dozen small eager operations."""
     inv = invert_rd(rd, A_coefficient(eta, fresnel), rtol=rtol, atol=rtol)
     sigma_tr = 1.0 / ld
     # Eq. 16: sigma_t' = sigma_tr / sqrt(3 (1 - alpha')) = sigma_tr / u.
@@ -77,8 +88,7 @@ def from_rd_ld(rd, ld, eta, g=None, *, fresnel: str = "poly", rtol: float | None
     # sigma_s' = alpha' sigma_t'; sigma_a = sigma_t' - sigma_s' = sigma_tr u / 3 (no cancellation).
     sigma_s_prime = inv.alpha_prime * sigma_t_prime
     sigma_a = sigma_tr * inv.u / 3.0
-    medium = Medium(sigma_a, sigma_s_prime, eta, g, fresnel=fresnel)
-    return Reparameterisation(medium=medium, alpha_prime=inv.alpha_prime, rd=rd, ld=ld, result=inv.result)
+    return inv, sigma_a, sigma_s_prime
 
 
 def to_rd_ld(medium: Medium):

@@ -10,6 +10,7 @@ import os
 import subprocess
 import sys
 import textwrap
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -18,6 +19,7 @@ import fitting
 import jaxsss
 from fitting import _kernel
 
+ROOT = Path(__file__).resolve().parents[2]
 R_GRID = np.geomspace(0.05, 20.0, 40)
 SA = np.array([0.0021, 0.0041, 0.0071])  # marble (Jensen 2001), 1/mm
 SS = np.array([2.19, 2.62, 3.00])
@@ -187,28 +189,40 @@ def test_second_call_with_new_values_does_not_retrace(marble_fit):
     np.testing.assert_allclose(fit.sigma_a, SA * 1.5, rtol=1e-8)
 
 
+def shard_data():
+    """4 single-channel profiles on R_GRID: 4 problems, the padded size of the other small dipole fits here (one
+    compilation in this process) and a multiple of the subprocess's two devices."""
+    sa = np.array([0.002, 0.004, 0.007, 0.01]); ss = np.array([2.0, 2.5, 3.0, 1.0])
+    R = np.moveaxis(dipole_data(sa, ss, 1.3), 1, 0)
+    return R * (1 + 0.01 * np.random.default_rng(0).standard_normal(R.shape))
+
+
 SHARD_SCRIPT = textwrap.dedent("""
-    import os
+    import json, os
     os.environ["XLA_FLAGS"] = "--xla_force_host_platform_device_count=2"
-    import jax, numpy as np, jaxsss, fitting
+    import jax, numpy as np, fitting
+    from tests.fitting.test_profile_fit import R_GRID, shard_data
     assert len(jax.devices()) == 2, jax.devices()
-    r = np.geomspace(0.05, 20.0, 30)
-    sa = np.array([0.002, 0.004, 0.007, 0.01, 0.02]); ss = np.array([2.0, 2.5, 3.0, 1.0, 0.5])
-    R = np.asarray(fitting.entry_transmittance(1.3) * jaxsss.dipole_profile(r[:, None], jaxsss.Medium(sa, ss, 1.3)))
-    data = np.moveaxis(R, 1, 0) * (1 + 0.01 * np.random.default_rng(0).standard_normal((5, 30)))  # 5 profiles
-    a = fitting.fit_profiles(r, data, eta=1.3, shard=True, warn=False)
-    b = fitting.fit_profiles(r, data, eta=1.3, shard=False, warn=False)
-    for k in ("sigma_a", "sigma_s_prime", "sigma_a_stderr", "sigma_s_prime_stderr"):
-        np.testing.assert_allclose(getattr(a, k), getattr(b, k), rtol=1e-9)
+    a = fitting.fit_profiles(R_GRID, shard_data(), eta=1.3, shard=True, warn=False)
     assert a.converged.all()
-    print("OK")
+    keys = ("sigma_a", "sigma_s_prime", "sigma_a_stderr", "sigma_s_prime_stderr")
+    print(json.dumps({k: np.asarray(getattr(a, k)).tolist() for k in keys}))
 """)
 
 
 def test_sharded_over_two_host_devices_equals_unsharded():
-    env = {**os.environ, "XLA_FLAGS": "--xla_force_host_platform_device_count=2", "JAX_PLATFORMS": "cpu"}
+    """The sharded fit (a subprocess with two forced host devices) equals this process's unsharded one (the same
+    compiled fit as the other small dipole fits here, so only the sharded variant compiles in the subprocess)."""
+    import json
+
+    env = {**os.environ, "XLA_FLAGS": "--xla_force_host_platform_device_count=2", "JAX_PLATFORMS": "cpu",
+           "PYTHONPATH": os.pathsep.join([str(ROOT), os.environ.get("PYTHONPATH", "")])}
     proc = subprocess.run([sys.executable, "-c", SHARD_SCRIPT], capture_output=True, text=True, env=env, timeout=300)
-    assert proc.returncode == 0 and "OK" in proc.stdout, proc.stderr[-3000:]
+    assert proc.returncode == 0, proc.stderr[-3000:]
+    sharded = json.loads(proc.stdout.strip().splitlines()[-1])
+    b = fitting.fit_profiles(R_GRID, shard_data(), eta=1.3, shard=False, warn=False)
+    for k, v in sharded.items():
+        np.testing.assert_allclose(v, getattr(b, k), rtol=1e-9)
 
 
 # --- 6. Differentiable fits -----------------------------------------------------------------------------------------
