@@ -5,6 +5,8 @@ Subcommands live in their own modules and register themselves through :data:`COM
 - ``reparam`` (:mod:`jaxsss.cli.reparam`): (Rd, l_d) <-> (sigma_a, sigma_s');
 - ``profile`` (:mod:`jaxsss.cli.profile`): a diffusion profile R(r) (and T(r)) as a table, JSON or plot;
 - ``render`` (:mod:`jaxsss.cli.render`): render a TOML scene of a translucent mesh;
+- ``export`` (:mod:`jaxsss.cli.export`): a scene and its material for Mitsuba 3 or pbrt-v4;
+- ``fit``, ``mc``: fit a measured profile (CSV, NumPy or MCML ``.mco``); run the Monte Carlo reference;
 - ``run`` (:mod:`jaxsss.cli.run`): the project's main job (``make run``).
 
 User errors print one line ``jaxsss: error: ...`` on stderr and give exit status 2 (see :mod:`jaxsss.cli._common`).
@@ -14,12 +16,12 @@ from __future__ import annotations
 
 import sys
 
-from jaxsss.cli import fit, mc, profile, render, reparam, run
+from jaxsss.cli import export, fit, mc, profile, render, reparam, run
 from jaxsss.cli._common import PROG, UNITS_EPILOG, CLIError, Parser, report_error
 
 __all__ = ["COMMANDS", "build_parser", "main"]
 
-COMMANDS = (reparam, profile, mc, fit, render, run)
+COMMANDS = (reparam, profile, mc, fit, render, export, run)
 """Subcommand modules; each provides ``add_parser(subparsers)`` which sets ``run(args) -> int`` as a default."""
 
 

@@ -1,4 +1,5 @@
-"""``jaxsss fit``: fit sigma_a and sigma_s' to a measured radial profile (CSV or NumPy file) with :mod:`fitting`."""
+"""``jaxsss fit``: fit sigma_a and sigma_s' to a measured radial profile (CSV, NumPy or MCML ``.mco`` file) with
+:mod:`fitting`."""
 
 from __future__ import annotations
 
@@ -7,7 +8,7 @@ import sys
 
 import numpy as np
 
-from jaxsss.cli._common import UNITS_EPILOG, CLIError, add_fresnel_option, number, print_json
+from jaxsss.cli._common import UNITS_EPILOG, CLIError, add_fresnel_option, format_table, number, print_json
 
 NAME = "fit"
 HELP = "fit sigma_a and sigma_s' to a radial profile R(r) (and T(r) for a slab)"
@@ -27,7 +28,16 @@ initial guess), where diffusion is trustworthy; --r-min/--r-max override it. The
 Output: a table (default) or one JSON object (--json) with sigma_a, sigma_s_prime, sigma_a_stderr,
 sigma_s_prime_stderr (1/mm), converged, iterations, seconds, model, and more (correlation, r_min, r_max, scale...).
 --plot FILE.png saves data, fit and residuals. Exit status: 0 on success, 1 if the solver did not converge (the
-output says so), 2 on a user error."""
+output says so), 2 on a user error.
+
+MCML runs: a .mco file (MCML 1.2.2's output) carries its own layers (n, g, thicknesses), ambient indices and photon
+count, so it needs no other argument: `jaxsss fit RUN.mco --json`. The default model there is mc, the
+transport-accurate one: the white-MC table where one exists for a half-space's (g, n), else replay (perturbation)
+Monte Carlo of the file's geometry with a trust region (seconds for a slab, up to minutes for a weakly absorbing
+half-space or a stack; --photons per simulation). The deepest layer is fitted, the others stay at the file's values
+(--free-layers chooses, top layer 0); the JSON's sigma_a and sigma_s_prime list the free layers, deepest first.
+--model dipole|multipole fits a one-layer run with a diffusion model for comparison. Options that the file decides
+(--eta, --thickness, --g, ...) are refused for a .mco file."""
 
 
 def add_parser(subparsers) -> argparse.ArgumentParser:
@@ -37,10 +47,11 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
         NAME, help=HELP, description=DESCRIPTION, epilog=UNITS_EPILOG,
         formatter_class=argparse.RawDescriptionHelpFormatter,
     )
-    p.add_argument("profile", metavar="PROFILE", help="profile file: .csv, .npy or .npz (r in mm)")
-    p.add_argument("--eta", type=number, required=True, help="relative index n_inside / n_outside, > 0")
-    p.add_argument("--model", choices=list(FORWARD_MODELS), default="dipole",
-                   help="forward model: " + "; ".join(f"{m.name}: {m.summary}" for m in FORWARD_MODELS.values()))
+    p.add_argument("profile", metavar="PROFILE", help="profile file: .csv, .npy, .npz (r in mm) or an MCML .mco run")
+    p.add_argument("--eta", type=number, help="relative index n_inside / n_outside, > 0 (required, except for .mco)")
+    p.add_argument("--model", choices=list(FORWARD_MODELS), default=None,
+                   help="forward model (default: dipole; mc for a .mco run): "
+                   + "; ".join(f"{m.name}: {m.summary}" for m in FORWARD_MODELS.values()))
     p.add_argument("--thickness", type=number, metavar="D", help="slab thickness, mm, > 0 (multipole; required there)")
     p.add_argument("--g", type=number, metavar="G",
                    help="Henyey-Greenstein anisotropy, fixed (mc model; required there: with --eta it picks a white "
@@ -52,6 +63,11 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
     p.add_argument("--solver", choices=list(SOLVERS), default="levenberg_marquardt", help="least-squares solver")
     p.add_argument("--max-steps", type=int, default=256, help="solver iteration cap (default 256)")
     add_fresnel_option(p)
+    p.add_argument("--free-layers", metavar="I[,J...]",
+                   help=".mco runs: indices of the layers to fit, top layer 0, negative from the bottom (default -1)")
+    p.add_argument("--photons", type=int, metavar="N",
+                   help=".mco runs, replay Monte Carlo: photons per simulation (default 100000)")
+    p.add_argument("--seed", type=int, default=0, help=".mco runs: seed of the replay simulations (default 0)")
     p.add_argument("--json", action="store_true", help="print one JSON object instead of a table")
     p.add_argument("--plot", metavar="FILE.png", help="save a plot of data, fit and residuals to FILE.png")
     p.set_defaults(run=run)
@@ -108,9 +124,61 @@ def _plot(path, data, fit):
     return save(fig, path)
 
 
+# Options a .mco run decides itself (the file's layers, indices and photon count), with their defaults.
+_MCO_DECIDES = {"eta": None, "thickness": None, "g": None, "relative": False, "free_eta": False, "r_min": None,
+                "r_max": None, "solver": "levenberg_marquardt", "max_steps": 256, "fresnel": "poly", "plot": None}
+_MCO_ONLY = {"free_layers": None, "photons": None, "seed": 0}
+
+
+def _flag(name: str) -> str:
+    return "--" + name.replace("_", "-")
+
+
+def _run_mco(args) -> int:
+    from fitting import fit_mco, read_mco
+
+    for name, default in _MCO_DECIDES.items():
+        if getattr(args, name) != default:
+            raise CLIError(f"{_flag(name)} does not apply to an MCML run ({args.profile}): the file gives the "
+                           "geometry, indices and photon count")
+    if args.photons is not None and args.photons < 1000:
+        raise CLIError(f"--photons {args.photons} must be >= 1000")
+    free = None
+    if args.free_layers is not None:
+        try:
+            free = tuple(int(v) for v in args.free_layers.split(","))
+        except ValueError:
+            raise CLIError(f"--free-layers {args.free_layers!r} is not a comma-separated list of integers") from None
+    run = read_mco(args.profile)
+    fit = fit_mco(run, model=args.model or "mc", free_layers=free, photons=args.photons or 100_000, seed=args.seed)
+    if not np.all(np.isfinite(np.concatenate([fit.sigma_a, fit.sigma_s_prime]))):
+        raise CLIError(f"the fit of {run.source} produced a non-finite value; refusing to print it")
+    if args.json:
+        print_json({**fit.to_dict(), "file": run.source})
+    else:
+        print(f"{run.source}: MCML run, {len(run.layers)} layer(s), {run.photons:g} photons; model {fit.model} "
+              f"({fit.method}), {fit.status}, {fit.simulations} simulations, {fit.seconds:.1f} s")
+        rows = [[str(i), f"{a:.5g} +- {sa:.2g}", f"{s_:.5g} +- {ss:.2g}", f"{ia:g}", f"{is_:g}"]
+                for i, a, sa, s_, ss, ia, is_ in zip(fit.free_layers, fit.sigma_a, fit.sigma_a_stderr,
+                                                      fit.sigma_s_prime, fit.sigma_s_prime_stderr, fit.input_sigma_a,
+                                                      fit.input_sigma_s_prime)]
+        print(format_table(["layer", "sigma_a (1/mm)", "sigma_s' (1/mm)", "run's sigma_a", "run's sigma_s'"], rows))
+    for text in fit.warnings:
+        print(f"jaxsss: warning: {' '.join(text.split())}", file=sys.stderr)
+    return 0 if fit.converged else 1
+
+
 def run(args) -> int:
     from fitting import fit_profile, read_profile
 
+    if str(args.profile).lower().endswith(".mco"):
+        return _run_mco(args)
+    for name, default in _MCO_ONLY.items():
+        if getattr(args, name) != default:
+            raise CLIError(f"{_flag(name)} applies to MCML .mco runs only")
+    if args.eta is None:
+        raise CLIError("--eta is required for a profile file (an MCML .mco run carries its own)")
+    args.model = args.model or "dipole"
     if args.r_min is not None and args.r_max is not None and not args.r_min < args.r_max:
         raise CLIError(f"--r-min {args.r_min:g} must be below --r-max {args.r_max:g}")
     if args.max_steps < 1:

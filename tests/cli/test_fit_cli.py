@@ -4,6 +4,8 @@ The profile is written in the format of ``jaxsss mc -o`` (``#`` comments, header
 plus 2% Gaussian noise, so the fit reuses the compilation of the library tests (a dipole fit of <= 4 problems) and
 needs no Monte Carlo run."""
 
+from pathlib import Path
+
 import numpy as np
 import pytest
 
@@ -68,6 +70,8 @@ def test_not_converged_exits_1_and_says_so(capsys, profile_csv):
         ("r_mm,R\n0.1,1.0\n0.2,abc\n", ["--eta", ETA], "line 3, column 2 (R): 'abc' is not a number"),
         ("r_mm,R\n0.2,1.0\n0.1,0.5\n", ["--eta", ETA], "line 3, column 1 (r_mm)"),
         ("missing", ["--eta", ETA], "cannot read the file"),
+        (None, [], "--eta is required for a profile file"),
+        (None, ["--eta", ETA, "--photons", 5000], "--photons applies to MCML .mco runs only"),
     ],
 )
 def test_user_errors_exit_2_with_one_line(capsys, profile_csv, tmp_path, body, args, match):
@@ -89,3 +93,31 @@ def test_help_lists_the_models_and_solvers(capsys):
     out = capsys.readouterr().out
     for name in ("dipole", "multipole", "levenberg_marquardt", "--relative", "--plot"):
         assert name in out
+
+
+MCO = Path(__file__).resolve().parents[1] / "fitting" / "data" / "slab03mm_n133_g09.mco"
+
+
+def test_an_mco_run_needs_no_other_argument(capsys):
+    """``jaxsss fit RUN.mco --json``: the transport-accurate route (replay MC for this slab), values per free layer."""
+    d = run_json(capsys, "fit", MCO, "--photons", 20_000, "--seed", 1)
+    assert d["model"] == "mc" and d["method"] == "replay" and d["free_layers"] == [0]
+    assert d["file"] == str(MCO) and d["simulations"] >= 2
+    assert len(d["sigma_a"]) == len(d["sigma_s_prime"]) == 1
+    # 2e4 photons per simulation: a loose check of the answer (the library test holds 3% at 5e4).
+    assert abs(d["sigma_a"][0] / 0.1 - 1) < 0.15 and abs(d["sigma_s_prime"][0] / 2.0 - 1) < 0.05
+
+
+@pytest.mark.parametrize("args, match", [
+    (["--eta", "1.33"], "--eta does not apply to an MCML run"),
+    (["--thickness", "0.3"], "--thickness does not apply"),
+    (["--free-layers", "1"], "free_layers=(1,)"),
+    (["--free-layers", "a"], "not a comma-separated list"),
+    (["--photons", "10"], "--photons 10 must be >= 1000"),
+    (["--model", "multipole", "--free-layers", "-2"], "outside the allowed range"),
+])
+def test_mco_user_errors_exit_2_with_one_line(capsys, args, match):
+    code, out, err = run_cli(capsys, "fit", MCO, *args)
+    assert code == 2 and out == ""
+    lines = err.strip().splitlines()
+    assert len(lines) == 1 and lines[0].startswith("jaxsss: error:") and match in lines[0], err
