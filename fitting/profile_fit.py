@@ -28,7 +28,7 @@ import jax.numpy as jnp
 import numpy as np
 
 import jaxsss
-from jaxsss._validate import trusted_traces
+from jaxsss.validate import trusted_traces
 from jaxsss.fresnel import resolve_fresnel_method
 from fitting import _kernel as K
 from fitting.io import ProfileData

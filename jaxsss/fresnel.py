@@ -33,7 +33,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from jaxsss import _config  # noqa: F401  (float64)
-from jaxsss._validate import as_float, check_range
+from jaxsss.validate import as_float, check_range
 
 __all__ = [
     "F_DR_METHODS",

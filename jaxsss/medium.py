@@ -29,7 +29,7 @@ import jax.numpy as jnp
 from jaxtyping import Array, Float
 
 from jaxsss import _config  # noqa: F401  (float64)
-from jaxsss._validate import check_range, require
+from jaxsss.validate import check_range, require
 from jaxsss.fresnel import resolve_fresnel_method
 
 __all__ = ["Medium"]

@@ -27,7 +27,7 @@ import numpy as np
 import optimistix as optx
 
 from jaxsss import _config  # noqa: F401  (float64)
-from jaxsss._validate import check_range
+from jaxsss.validate import check_range
 from jaxsss.medium import Medium
 
 __all__ = [

@@ -23,7 +23,7 @@ import equinox as eqx
 import jax
 import optimistix as optx
 
-from jaxsss._validate import check_range
+from jaxsss.validate import check_range
 from jaxsss.fresnel import A_coefficient, resolve_fresnel_method
 from jaxsss.medium import Medium
 from jaxsss.reflectance import invert_rd, medium_total_diffuse_reflectance

@@ -121,7 +121,7 @@ def _plot(path, r, values, n, model, title):
 
 
 def run(args) -> int:
-    from jaxsss._validate import check_range
+    from jaxsss.validate import check_range
 
     model = MODELS[args.model]
     if model.needs_thickness and args.thickness is None:

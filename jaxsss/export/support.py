@@ -50,9 +50,11 @@ def check_exportable(scene, target: str) -> None:
     for i, _ in enumerate(scene.blockers):
         raise ExportError(f"blocker[{i}]", f"blockers (absorbing meshes inside the object) cannot be exported to "
                           f"{target}: only --method photon models them; remove the [[blocker]] tables")
-    if scene.layers is not None:
-        raise ExportError("layers", f"layer textures ([layers], --method layered) cannot be exported to {target}: "
-                          "the exporters write one homogeneous medium")
+    for name, value in scene.sections.items():  # registered scene sections, e.g. [layers] (layer textures)
+        if value is not None:
+            raise ExportError(name, f"the [{name}] section (a registered extension such as the layer textures of "
+                              f"--method layered) cannot be exported to {target}: the exporters write one "
+                              "homogeneous medium")
     if scene.material.texture is not None:
         raise ExportError("material.texture", f"{scene.material.texture_path!r}: a texture multiplies jaxsss's "
                           f"irradiance samples and has no equivalent in a homogeneous {target} medium")

@@ -47,7 +47,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from jaxsss._validate import check_integer
+from jaxsss.validate import check_integer
 from jaxsss.layered.layers import LayerStack
 from jaxsss.phase import PHASE_FUNCTIONS
 from jaxsss.layered.presets import LAYER_PRESETS, layer_preset

@@ -18,7 +18,7 @@ import equinox as eqx
 import jax.numpy as jnp
 from jaxtyping import Array, Float
 
-from jaxsss._validate import check_range, is_concrete, require
+from jaxsss.validate import check_range, is_concrete, require
 from jaxsss.phase import PHASE_FUNCTIONS, SCHLICK_G_MAX
 
 __all__ = ["LayerStack"]

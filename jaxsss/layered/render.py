@@ -32,7 +32,7 @@ from jaxsss.layered.march import PixelGeometry, march_pixels
 from jaxsss.layered.plan import layered_plan
 from jaxsss.layered.planes import fit_planes, neighbourhood_radius, planes_at
 from jaxsss.layered.tangents import barycentric, frames_at, surface_frames, wrap_for
-from jaxsss._validate import check_integer
+from jaxsss.validate import check_integer
 from jaxsss.medium import Medium
 from jaxsss.render.plan import make_plan
 from jaxsss.render.renderer import prepare as prepare_diffusion

@@ -28,7 +28,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from jaxsss._validate import check_integer
+from jaxsss.validate import check_integer
 from scipy import ndimage
 
 __all__ = [

@@ -29,7 +29,7 @@ import numpy as np
 from jax import lax
 
 from jaxsss import _config  # noqa: F401  (float64)
-from jaxsss._validate import check_range
+from jaxsss.validate import check_range
 from jaxsss.fresnel import fresnel_reflectance
 from jaxsss.mc._kernel import N_ORDER, _bin, _fresnel, _hg_cos, _spin, _uniform
 from jaxsss.mc.result import stderr_of_mean

@@ -38,7 +38,7 @@ from jax.sharding import Mesh
 from jax.sharding import PartitionSpec as P
 
 from jaxsss import _config  # noqa: F401  (float64)
-from jaxsss._validate import check_range
+from jaxsss.validate import check_range
 from jaxsss.mc._kernel import N_ORDER, KernelConfig, batch_kernel
 from jaxsss.fresnel import fresnel_reflectance
 from jaxsss.mc.result import MCResult, stderr_of_mean

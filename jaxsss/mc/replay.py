@@ -62,7 +62,7 @@ from jax import lax
 from jaxtyping import Array, Float, Int
 
 from jaxsss import _config  # noqa: F401  (float64)
-from jaxsss._validate import check_range
+from jaxsss.validate import check_range
 from jaxsss.mc._kernel import _fresnel, _hg_cos, _spin, _uniform
 from jaxsss.mc.engine import entry_state
 from jaxsss.mc.stack import Stack

@@ -21,7 +21,7 @@ import numpy as np
 from jaxtyping import Array, Float
 
 from jaxsss import _config  # noqa: F401  (float64)
-from jaxsss._validate import check_range
+from jaxsss.validate import check_range
 
 __all__ = ["Layer", "Stack"]
 

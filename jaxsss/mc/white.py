@@ -57,7 +57,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from jaxsss import _config  # noqa: F401  (float64)
-from jaxsss._validate import check_range
+from jaxsss.validate import check_range
 
 __all__ = [
     "WhiteTable",

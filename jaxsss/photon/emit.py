@@ -26,7 +26,7 @@ from typing import NamedTuple
 
 import numpy as np
 
-from jaxsss._validate import check_integer
+from jaxsss.validate import check_integer
 from jaxsss.render.lights import spot_factor
 
 __all__ = ["PhotonRays", "emit_photons"]

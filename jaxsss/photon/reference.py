@@ -21,7 +21,7 @@ import numpy as np
 import trimesh
 from scipy.spatial import cKDTree
 
-from jaxsss._validate import check_integer
+from jaxsss.validate import check_integer
 from jaxsss.photon.trace import Exits, PhotonTrace
 
 __all__ = ["SurfaceExitance", "mesh_monte_carlo", "surface_exitance"]

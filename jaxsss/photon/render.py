@@ -28,7 +28,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from jaxsss._validate import check_integer
+from jaxsss.validate import check_integer
 from jaxsss.medium import Medium
 from jaxsss.photon.emit import emit_photons
 from jaxsss.photon.trace import PhotonTrace, trace_photons

@@ -38,7 +38,7 @@ import equinox as eqx
 import jax.numpy as jnp
 
 from jaxsss import _config  # noqa: F401  (float64)
-from jaxsss._validate import as_float, check_range, require
+from jaxsss.validate import as_float, check_range, require
 from jaxsss.medium import Medium
 from jaxsss.profiles._sources import point_source_exitance
 from jaxsss.profiles.multipole import _check_n_pairs

@@ -20,7 +20,7 @@ from __future__ import annotations
 
 import equinox as eqx
 
-from jaxsss._validate import check_range
+from jaxsss.validate import check_range
 from jaxsss.medium import Medium
 from jaxsss.profiles._sources import point_source_exitance_sq
 

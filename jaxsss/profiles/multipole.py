@@ -65,7 +65,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from jaxsss import _config  # noqa: F401  (float64)
-from jaxsss._validate import check_range, is_concrete
+from jaxsss.validate import check_range, is_concrete
 from jaxsss.medium import Medium
 from jaxsss.profiles._sources import point_source_exitance_sq
 

@@ -48,7 +48,7 @@ import jax
 import jax.numpy as jnp
 
 from jaxsss import _config  # noqa: F401  (float64)
-from jaxsss._validate import check_range, require
+from jaxsss.validate import check_range, require
 from jaxsss.fresnel import snell_cosine
 from jaxsss.medium import Medium
 from jaxsss.profiles._beam import DEFAULT_NODES, beam_nodes, check_nodes

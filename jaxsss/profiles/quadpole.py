@@ -41,7 +41,7 @@ import equinox as eqx
 import jax.numpy as jnp
 
 from jaxsss import _config  # noqa: F401  (float64)
-from jaxsss._validate import check_range
+from jaxsss.validate import check_range
 from jaxsss.medium import Medium
 from jaxsss.profiles._sources import point_source_exitance
 from jaxsss.profiles.point_sources import safe_sqrt

@@ -20,7 +20,7 @@ from typing import NamedTuple
 
 import numpy as np
 
-from jaxsss._validate import check_integer
+from jaxsss.validate import check_integer
 from jaxsss.render.octree import MORTON_BITS, Octree
 
 __all__ = ["Interactions", "build_interactions", "direct_interactions"]

@@ -30,7 +30,7 @@ from typing import NamedTuple
 
 import numpy as np
 
-from jaxsss._validate import check_integer
+from jaxsss.validate import check_integer
 
 __all__ = ["Octree", "build_octree", "cut_sums_from_samples", "morton_codes", "segment_range_sum"]
 

@@ -99,7 +99,7 @@ from typing import Any
 import numpy as np
 import trimesh
 
-from jaxsss._validate import bound_text
+from jaxsss.validate import bound_text
 from jaxsss.data.materials import material as _measured_material
 from jaxsss.medium import Medium
 from jaxsss.render.meshes import (

@@ -28,7 +28,7 @@ from importlib import resources
 
 import numpy as np
 
-from jaxsss._validate import check_integer
+from jaxsss.validate import check_integer
 import trimesh
 
 __all__ = ["TEAPOT_HEIGHT", "TeapotPatches", "load_teapot_patches", "teapot_mesh"]

@@ -182,7 +182,7 @@ def test_refusals(tmp_path):
     scene = load_scene(REFERENCES / "skin1_sphere.toml")
     cases = {
         "blocker[0]": scene_with(scene, blockers=(Blocker(scene.mesh, "box"),)),
-        "layers": scene_with(scene, layers=object()),
+        "layers": scene_with(scene, sections={"layers": object()}),
         "material.texture": scene_with(scene, material=Material(scene.material.medium, texture=np.ones((2, 2, 3)),
                                                                 texture_path="face.png")),
         "environment": scene_with(scene, environment=str(tmp_path / "missing.hdr")),

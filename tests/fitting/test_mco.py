@@ -213,7 +213,7 @@ def test_jaxsss_fit_reports_a_bad_mco_file_in_one_line(capsys, tmp_path):
     from tests.cli.runner import run_cli
 
     path = _edit(tmp_path, lambda ls: ls[:300])
-    code, out, err = run_cli(capsys, "fit", path, "--eta", 1.33)
+    code, out, err = run_cli(capsys, "fit", path)
     lines = err.strip().splitlines()
     assert code == 2 and out == "" and len(lines) == 1, err
     assert lines[0].startswith(f"jaxsss: error: {path}: line 300: block Tt_r ends after"), err

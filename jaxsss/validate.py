@@ -1,4 +1,5 @@
-"""Boundary validation shared by every public constructor and function.
+"""Boundary validation shared by every public constructor and function (public: the renderer, the Monte Carlo
+engine, the fitting layer and user extensions such as new render methods or forward models use the same checks).
 
 Errors name the argument, the offending value and the allowed range (DESIGN.md, "Bad input"). Concrete inputs are
 checked eagerly in NumPy and raise :class:`ValueError`; traced inputs (inside ``jit``/``vmap``/``grad``) are checked
