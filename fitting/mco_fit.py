@@ -79,16 +79,10 @@ class McoFit(NamedTuple):
 
 
 def _free_layers(run: McoRun, free_layers) -> list[int]:
-    L = len(run.layers)
-    out = []
-    for i in (-1,) if free_layers is None else free_layers:
-        if isinstance(i, bool) or not isinstance(i, (int, np.integer)) or not -L <= i < L:
-            raise ValueError(f"fit_mco(free_layers={free_layers!r}): layer index {i!r} is outside the allowed range "
-                             f"[{-L}, {L - 1}] for the {L} layer(s) of {run.source}")
-        out.append(int(i) % L)
-    if not out or len(set(out)) != len(out):
-        raise ValueError(f"fit_mco(free_layers={free_layers!r}) must name distinct layers, at least one")
-    return sorted(out, reverse=True)  # deepest first
+    from fitting.replay_fit import layer_indices
+
+    free = layer_indices((-1,) if free_layers is None else tuple(free_layers), len(run.layers), "fit_mco")
+    return sorted(free, reverse=True)  # deepest first
 
 
 def _reduced(layer) -> tuple[float, float]:

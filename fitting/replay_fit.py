@@ -317,6 +317,20 @@ def _corrected_step(theta_ref, theta, sample, problem, max_gain: float = 5.0):
     return step, A, 1.0
 
 
+def layer_indices(free_layers: Sequence[int], num_layers: int, owner: str) -> list[int]:
+    """``free_layers`` (indices, negative from the bottom) as distinct indices in ``[0, num_layers)``, in the given
+    order; a ``ValueError`` naming ``owner`` for an index out of range, a repeat or an empty list."""
+    L, free = num_layers, []
+    for i in free_layers:
+        if isinstance(i, bool) or not isinstance(i, (int, np.integer)) or not -L <= i < L:
+            raise ValueError(f"{owner}(free_layers={tuple(free_layers)!r}): layer index {i!r} is outside the allowed "
+                             f"range [{-L}, {L - 1}]")
+        free.append(int(i) % L)
+    if not free or len(set(free)) != len(free):
+        raise ValueError(f"{owner}(free_layers={tuple(free_layers)!r}) must name distinct layers, at least one")
+    return free
+
+
 def fit_replay(stack: Stack, data: ReplayData, *, free_layers: Sequence[int] = (-1,), photons: int = 200_000,
                ess_threshold: float = ESS_THRESHOLD, ess_final: float = ESS_FINAL, max_move: float = MAX_MOVE,
                max_simulations: int = 12, max_steps: int = 100,
@@ -349,14 +363,7 @@ def fit_replay(stack: Stack, data: ReplayData, *, free_layers: Sequence[int] = (
     if not isinstance(stack, Stack):
         raise ValueError(f"fit_replay(stack={stack!r}) must be a jaxsss.mc.Stack")
     L = stack.num_layers
-    free = []
-    for i in free_layers:
-        if isinstance(i, bool) or not isinstance(i, (int, np.integer)) or not -L <= i < L:
-            raise ValueError(f"fit_replay(free_layers={tuple(free_layers)!r}): layer index {i!r} is outside the "
-                             f"allowed range [{-L}, {L - 1}]")
-        free.append(int(i) % L)
-    if not free or len(set(free)) != len(free):
-        raise ValueError(f"fit_replay(free_layers={tuple(free_layers)!r}) must name distinct layers, at least one")
+    free = layer_indices(free_layers, L, "fit_replay")
     if not 0.0 < ess_threshold < 1.0:
         raise ValueError(f"fit_replay(ess_threshold={ess_threshold!r}) is outside the allowed range (0, 1)")
     if not ess_threshold <= ess_final < 1.0:

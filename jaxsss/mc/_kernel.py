@@ -127,6 +127,27 @@ def _fresnel(cos_i, rel, xp=jnp):
     return xp.where(ok, F, 1.0), cos_t
 
 
+def _interface(ux, uy, uz, layer, hit, alive, n_ext, L: int, u_a):
+    """A walk's step at the boundary its hop hit (``hit``): all-or-none Fresnel reflection with probability
+    ``R(theta_i)`` (MCML manual 3.7.1, uniform ``u_a``), else crossing with Snell's law. ``n_ext``: the indices
+    ``(n_above, n_1 ... n_L, n_below)``. Returns ``(next layer index, exit_top, exit_bot, inner crossing, direction
+    after the boundary (ux, uy, uz))``; lanes that did not hit keep their direction."""
+    up = uz < 0.0
+    nl = layer + jnp.where(up, -1, 1).astype(jnp.int32)
+    rel = n_ext[nl + 1] / n_ext[layer + 1]
+    F, cos_t = _fresnel(jnp.abs(uz), rel)
+    reflect = hit & (u_a < F)
+    cross = hit & ~reflect
+    exit_top = alive & cross & (nl < 0)
+    exit_bot = alive & cross & (nl >= L)
+    inner = cross & (nl >= 0) & (nl < L)
+    # Snell's law for the transmitted direction.
+    ux_b = jnp.where(cross, ux / rel, ux)
+    uy_b = jnp.where(cross, uy / rel, uy)
+    uz_b = jnp.where(reflect, -uz, jnp.where(cross, jnp.where(up, -cos_t, cos_t), uz))
+    return nl, exit_top, exit_bot, inner, (ux_b, uy_b, uz_b)
+
+
 def _hg_cos(g, u):
     """Henyey-Greenstein deflection cosine by exact inversion (MCML manual Eq. 3.28); isotropic for ``g = 0``."""
     gs = jnp.where(g == 0.0, 0.5, g)
@@ -378,19 +399,7 @@ def batch_kernel(cfg: KernelConfig, params: dict, key, budget):
         s = jnp.where(hit, jnp.maximum(s - d_b * mu_t, 0.0), 0.0)
 
         # --- Interface: reflect with probability R(theta_i) (all-or-none, MCML manual 3.7.1), else cross.
-        up = uz < 0.0
-        nl = layer + jnp.where(up, -1, 1).astype(jnp.int32)
-        rel = n_ext[nl + 1] / n_ext[layer + 1]
-        F, cos_t = _fresnel(jnp.abs(uz), rel)
-        reflect = hit & (u_a < F)
-        cross = hit & ~reflect
-        exit_top = alive & cross & (nl < 0)
-        exit_bot = alive & cross & (nl >= L)
-        inner = cross & (nl >= 0) & (nl < L)
-        # Snell's law for the transmitted direction.
-        ux_b = jnp.where(cross, ux / rel, ux)
-        uy_b = jnp.where(cross, uy / rel, uy)
-        uz_b = jnp.where(reflect, -uz, jnp.where(cross, jnp.where(up, -cos_t, cos_t), uz))
+        nl, exit_top, exit_bot, inner, (ux_b, uy_b, uz_b) = _interface(ux, uy, uz, layer, hit, alive, n_ext, L, u_a)
 
         # --- Interaction: absorb by weight (implicit capture, MCML manual 3.5), then scatter (3.6).
         interact = alive & ~hit

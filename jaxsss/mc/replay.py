@@ -63,7 +63,7 @@ from jaxtyping import Array, Float, Int
 
 from jaxsss import _config  # noqa: F401  (float64)
 from jaxsss.validate import check_range
-from jaxsss.mc._kernel import _fresnel, _hg_cos, _spin, _uniform
+from jaxsss.mc._kernel import _hg_cos, _interface, _spin, _uniform
 from jaxsss.mc.engine import entry_state
 from jaxsss.mc.stack import Stack
 
@@ -146,18 +146,7 @@ def _record_kernel(cfg: _RecordConfig, params: dict, key, budget):
         Lp = st["L"] + jnp.where(in_layer & alive[:, None], dist[:, None], 0.0)
         s = jnp.where(hit, jnp.maximum(s - d_b * mu, 0.0), 0.0)
         # --- Interface: all-or-none Fresnel reflection (MCML manual 3.7.1), else refract (Snell).
-        up = uz < 0.0
-        nl = layer + jnp.where(up, -1, 1).astype(jnp.int32)
-        rel = n_ext[nl + 1] / n_ext[layer + 1]
-        F, cos_t = _fresnel(jnp.abs(uz), rel)
-        reflect = hit & (u_a < F)
-        cross = hit & ~reflect
-        exit_top = alive & cross & (nl < 0)
-        exit_bot = alive & cross & (nl >= L)
-        inner = cross & (nl >= 0) & (nl < L)
-        ux_b = jnp.where(cross, ux / rel, ux)
-        uy_b = jnp.where(cross, uy / rel, uy)
-        uz_b = jnp.where(reflect, -uz, jnp.where(cross, jnp.where(up, -cos_t, cos_t), uz))
+        nl, exit_top, exit_bot, inner, (ux_b, uy_b, uz_b) = _interface(ux, uy, uz, layer, hit, alive, n_ext, L, u_a)
         # --- Scattering: Henyey-Greenstein deflection (MCML manual 3.6); no absorption, so no weight and no roulette.
         interact = alive & ~hit
         cos_s = _hg_cos(g_layer[layer], u_a)
