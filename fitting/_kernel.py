@@ -204,7 +204,7 @@ def starts(r, y, se, eta, d, r_lo, r_hi, auto, cfg: Config):
 
     # The default range depends on the start: a first pass scores each candidate on its own range (mean squares, so
     # that ranges of different lengths compare), the best one fixes the range, and a second pass scores every
-    # candidate on that one range (the two starts and the final costs then compare).
+    # candidate on that one range (the starts and the final costs then compare).
     s0, _ = jax.vmap(lambda a, b, pr: score(a, pr, range_mask(a, b)[0]))(sa_c, ss_c, preds)
     first = jnp.argmin(s0)
     mask, r_cut, fallback = range_mask(sa_c[first], ss_c[first])
@@ -277,8 +277,11 @@ def step_limits(n_starts: int, cfg: Config):
 
 
 def _linearise(theta, args):
-    res = lambda th: residuals(th, args)  # noqa: E731
-    J, rr = jax.jacfwd(lambda th: (res(th), res(th)), has_aux=True)(theta)
+    def res(th):  # the residuals once, as value and as auxiliary output (one trace of the model)
+        v = residuals(th, args)
+        return v, v
+
+    J, rr = jax.jacfwd(res, has_aux=True)(theta)
     return rr, J
 
 
@@ -492,7 +495,7 @@ def covariance(theta, args, cfg: Config):
 
 def fit(r, y, se, eta, d, r_lo, r_hi, auto, cfg: Config):
     """The whole fit of one problem in one traced function (models without a per-solution static setting):
-    starts, solves and :func:`finish`. Returns ``(out, theta0, r_cut, flags)``."""
+    starts, solves and :func:`finish`. Returns ``(out, theta0, mask, r_cut, flags)``."""
     TRACES["fit"] += 1
     theta0, mask, r_cut, flags = starts(r, y, se, eta, d, r_lo, r_hi, auto, cfg)
     sol = solve_starts(theta0, mask, r, y, se, eta, d, cfg)

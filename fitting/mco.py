@@ -51,7 +51,7 @@ import numpy as np
 
 from fitting.io import ProfileData, ProfileFileError
 
-__all__ = ["McoLayer", "McoRun", "SEMI_INFINITE_MM", "bin_standard_errors", "read_mco"]
+__all__ = ["McoLayer", "McoRun", "SEMI_INFINITE_MM", "bin_standard_errors", "poisson_stderr", "read_mco"]
 
 SEMI_INFINITE_MM = 1e6
 """A layer at least this thick (1 km; MCML users write ``1E+08`` cm) counts as semi-infinite."""
@@ -173,17 +173,23 @@ class McoRun(NamedTuple):
         return ProfileData(r=r, R=R, R_stderr=R_se, T=T, T_stderr=T_se, source=self.source)
 
 
+def poisson_stderr(value, photons: int, area=1.0, *, empty_as_one: bool = False):
+    """Poisson-like standard error of a Monte Carlo tally: ``sqrt(p (1 - p) / N) / area`` with ``p = value * area``
+    (the fraction of the ``N`` incident photons in the bin). Exact for unit-weight photons; photons whose weight was
+    reduced by absorption make the true error smaller, so it is conservative. ``empty_as_one``: a bin that caught no
+    photon gets one photon's error (``p`` replaced by ``1/N`` in the first factor) instead of zero."""
+    p = np.clip(np.asarray(value, dtype=np.float64) * area, 0.0, 1.0)
+    q = np.maximum(p, 1.0 / photons) if empty_as_one else p
+    return np.sqrt(q * (1.0 - p) / photons) / area
+
+
 def bin_standard_errors(run: McoRun, values) -> np.ndarray:
     """Standard errors (same unit as ``values``, 1/mm^2) of a radial array of ``run`` (``Rd_r`` or ``Tt_r``), from the
-    photon count: ``sqrt(max(p, 1/N) (1 - p) / N) / area`` with ``p = values * area`` the fraction of photons through
-    the bin (an upper bound; exact without absorption -- see the module docstring)."""
-    values = np.asarray(values, dtype=np.float64)
+    photon count: :func:`poisson_stderr` over each annulus with an empty bin counted as one photon, i.e.
+    ``sqrt(max(p, 1/N) (1 - p) / N) / area`` (an upper bound; exact without absorption -- see the module
+    docstring)."""
     area = np.pi * (run.r_hi**2 - run.r_lo**2)
-    n = float(run.photons)
-    # Fraction of the incident photons' weight through each annulus; a zero bin counts as one photon.
-    p = np.clip(values * area, 0.0, 1.0)
-    # Bernoulli bound on the variance of a weight in [0, 1] (module docstring).
-    return np.sqrt(np.maximum(p, 1.0 / n) * (1.0 - p) / n) / area
+    return poisson_stderr(values, run.photons, area, empty_as_one=True)
 
 
 # --- Parsing ------------------------------------------------------------------------------------------------------

@@ -85,10 +85,6 @@ def _free_layers(run: McoRun, free_layers) -> list[int]:
     return sorted(free, reverse=True)  # deepest first
 
 
-def _reduced(layer) -> tuple[float, float]:
-    return float(layer.mua), float(layer.mus) * (1.0 - float(layer.g))
-
-
 def _diffusion_fit(run: McoRun, model: str):
     from fitting.profile_fit import fit_profile
 
@@ -106,7 +102,7 @@ def _stack(run: McoRun, start: dict[int, tuple[float, float]]):
     layers = []
     for i, layer in enumerate(run.layers):
         g = float(layer.g)
-        sa, ssp = start.get(i, _reduced(layer))
+        sa, ssp = start.get(i, (layer.sigma_a, layer.sigma_s_prime))
         thickness = math.inf if layer.semi_infinite else float(layer.thickness)
         layers.append(Layer(sa, ssp / (1.0 - g), g, float(layer.n), thickness))
     return Stack(layers, n_above=run.n_above, n_below=run.n_below)
@@ -132,7 +128,7 @@ def fit_mco(run: McoRun | str | Path, *, model: str = "mc", free_layers: Sequenc
     if model not in MCO_MODELS:
         raise ValueError(f"fit_mco(model={model!r}) is not one of: {', '.join(MCO_MODELS)}")
     free = _free_layers(run, free_layers)
-    truth = np.array([_reduced(run.layers[i]) for i in free])
+    truth = np.array([(run.layers[i].sigma_a, run.layers[i].sigma_s_prime) for i in free])
     single = len(run.layers) == 1
     if model != "mc" and not single:
         raise ProfileFileError(f"{run.source}: the {model} model describes one layer; this run has "
@@ -159,10 +155,10 @@ def fit_mco(run: McoRun | str | Path, *, model: str = "mc", free_layers: Sequenc
     if model in ("dipole", "multipole"):
         return from_profile_fit(_diffusion_fit(run, model), model)
 
-    from jaxsss.mc import available_white_tables
+    from fitting.models import has_white_table
 
     layer = run.layers[-1]
-    if single and run.semi_infinite and (round(float(layer.g), 2), round(run.eta, 2)) in available_white_tables():
+    if single and run.semi_infinite and has_white_table(layer.g, run.eta):
         from fitting.profile_fit import fit_profile
 
         data = run.to_profile()

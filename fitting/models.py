@@ -169,6 +169,13 @@ def _mc_key(g, eta) -> tuple[float, float]:
     return round(float(g), 2), round(float(eta), 2)
 
 
+def has_white_table(g, eta) -> bool:
+    """Whether a shipped white Monte Carlo table serves ``(g, eta)`` (the ``mc`` model's lookup, to 2 decimals)."""
+    from jaxsss.mc import available_white_tables
+
+    return _mc_key(g, eta) in [_mc_key(a, b) for a, b in available_white_tables()]
+
+
 @lru_cache(maxsize=8)
 def mc_table(g: float, n: float):
     """The shipped white Monte Carlo table for ``(g, n)`` (cached: loaded once per process)."""
@@ -191,7 +198,7 @@ def _mc_configure(owner, eta, g):
     if etas.size != 1:
         raise ValueError(f"{owner}(model='mc', eta={etas.tolist()}): one eta per fit (one table); fit each eta apart")
     key = _mc_key(g, etas[0])
-    if key not in [_mc_key(a, b) for a, b in pairs]:
+    if not has_white_table(*key):
         raise ValueError(f"{owner}(model='mc', g={float(g):g}, eta={float(etas[0]):g}): no white Monte Carlo table for "
                          f"this pair; available (g, eta) pairs: {listing}. Generate one with `python -m "
                          f"jaxsss.mc.white --regenerate --g {float(g):g} --n {float(etas[0]):g}`")

@@ -388,18 +388,22 @@ def _fit(owner, batched, r, R, R_stderr, T, T_stderr, *, eta, model, thickness, 
         # serves); if the solution needs more, solve again from it and add the iterations.
         steps_total = 0
         start = theta0
+
+        def static_need(theta):
+            # The setting every start (or solution) needs, each at its own parameters (eta too when it is free).
+            p = np.exp(np.asarray(theta))
+            return max(_prepare_static(model, pb, p[:, i, 0], p[:, i, 1], p[:, i, -1] if cfg.free_eta else eta_p,
+                                       fresnel, notes) for i in range(p.shape[1]))
+
         for attempt in range(3):
             if model.prepare is not None:
-                st = np.exp(np.asarray(start))
-                need = _prepare_static(model, pb, st[:, :, 0].max(1), st[:, :, 1].max(1), eta_p, fresnel, notes)
+                need = static_need(start)
                 cfg = cfg._replace(static=min(max(2 * need, cfg.static if attempt else 0), model.static_cap))
             thetas, results, steps, stationary = _solve(cfg, shard, pb.r, start, mask, y, se, eta_p, d)
             steps_total = steps_total + steps
             if model.prepare is None:
                 break
-            sol = np.exp(np.asarray(thetas))
-            need = max(_prepare_static(model, pb, sol[:, i, 0], sol[:, i, 1], eta_p, fresnel, notes)
-                       for i in range(sol.shape[1]))
+            need = static_need(thetas)
             if need <= cfg.static:
                 break
             start = thetas

@@ -53,6 +53,7 @@ import optimistix as optx
 
 import jaxsss  # noqa: F401  (float64)
 from jaxsss.mc import Layer, Stack
+from fitting.mco import poisson_stderr
 from jaxsss.mc.replay import SIDE_R, SIDE_T, photon_weights, record, replay
 
 __all__ = ["ReplayData", "ReplayFit", "fit_replay", "fit_slab_totals", "poisson_stderr"]
@@ -76,14 +77,6 @@ BIN_QUANTILE = 0.1
 MIN_COUNT = 10.0
 """Profile bins whose expected photon count ``value * area * photons`` in the data is below this are left out (the
 Poisson-like error is not Gaussian there)."""
-
-
-def poisson_stderr(value, photons: int, area=1.0):
-    """Poisson-like standard error of a Monte Carlo tally: ``sqrt(p (1 - p) / N) / area`` with ``p = value * area``
-    (the fraction of the ``N`` incident photons in the bin). Exact for unit-weight photons; photons whose weight was
-    reduced by absorption make the true error smaller, so it is conservative."""
-    p = np.clip(np.asarray(value, dtype=np.float64) * area, 0.0, 1.0)
-    return np.sqrt(p * (1.0 - p) / photons) / area
 
 
 class ReplayData(NamedTuple):

@@ -74,9 +74,9 @@ class ProfileFit(eqx.Module):
             residuals are a smooth misfit (lag-1 autocorrelation along r above 0.5, rms above 1e-6), not noise. A
             suspect fit may still report ``converged``; :attr:`warnings` says
             why it may be wrong and :attr:`reliable` is ``False``.
-        alt_sigma_a, alt_sigma_s_prime, alt_cost_ratio: the solution from the other start (the fit solves from two
-            starts of different albedo, :mod:`fitting._kernel`) and its cost over the chosen one's (``>= 1``; 1 when
-            both found the same minimum, ``inf`` if it did not converge).
+        alt_sigma_a, alt_sigma_s_prime, alt_cost_ratio: the best solution among the other starts (the fit solves
+            from three starts of different albedo, :mod:`fitting._kernel`) and its cost over the chosen one's
+            (``>= 1``; 1 when both found the same minimum, ``inf`` if it did not converge).
         residual_autocorrelation: lag-1 autocorrelation of the weighted residuals along r.
     """
 
@@ -174,7 +174,9 @@ class ProfileFit(eqx.Module):
                     continue
                 i = int(np.argmax(hit))
                 if what == "chi2":
-                    lim = 1.0 + CHI2_SIGMAS * np.sqrt(2.0 / max(n[i] - 2, 1))
+                    # The same degrees of freedom as the check (fitting._kernel.finish): n minus every free parameter.
+                    n_par = 2 + int(self.relative) + int(self.free_eta)
+                    lim = 1.0 + CHI2_SIGMAS * np.sqrt(2.0 / max(n[i] - n_par, 1))
                     out.append(
                         f"{int(hit.sum())} of {hit.size} fits are suspect: the residuals exceed the given standard "
                         f"errors (first: fit {i}: reduced chi^2 = {chi2[i]:.3g} > {lim:.3g}); the solution may be a "

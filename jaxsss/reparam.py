@@ -23,7 +23,7 @@ import equinox as eqx
 import jax
 import optimistix as optx
 
-from jaxsss.validate import check_range
+from jaxsss.validate import check_range, trusted_traces
 from jaxsss.fresnel import A_coefficient, resolve_fresnel_method
 from jaxsss.medium import Medium
 from jaxsss.reflectance import invert_rd, medium_total_diffuse_reflectance
@@ -80,8 +80,11 @@ def from_rd_ld(rd, ld, eta, g=None, *, fresnel: str = "poly", rtol: float | None
 @partial(jax.jit, static_argnums=(3, 4))
 def _eq16(rd, ld, eta, fresnel, rtol):
     """The inversion and Eq. 16 as one compiled program (validated inputs): a process that converts one value
-    compiles once (and JAX's persistent cache keeps it) instead of dispatching a dozen small eager operations."""
-    inv = invert_rd(rd, A_coefficient(eta, fresnel), rtol=rtol, atol=rtol)
+    compiles once (and JAX's persistent cache keeps it) instead of dispatching a dozen small eager operations. The
+    inputs were checked on the host, so the traced checks are left out (:func:`~jaxsss.validate.trusted_traces`): a
+    program with them holds host callbacks, which the persistent cache does not store."""
+    with trusted_traces():
+        inv = invert_rd(rd, A_coefficient(eta, fresnel), rtol=rtol, atol=rtol)
     sigma_tr = 1.0 / ld
     # Eq. 16: sigma_t' = sigma_tr / sqrt(3 (1 - alpha')) = sigma_tr / u.
     sigma_t_prime = sigma_tr / inv.u

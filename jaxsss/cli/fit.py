@@ -70,7 +70,7 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
     p.add_argument("--seed", type=int, default=0, help=".mco runs: seed of the replay simulations (default 0)")
     p.add_argument("--json", action="store_true", help="print one JSON object instead of a table")
     p.add_argument("--plot", metavar="FILE.png", help="save a plot of data, fit and residuals to FILE.png")
-    p.set_defaults(run=run)
+    p.set_defaults(run=run, defaults={name: p.get_default(name) for name in _MCO_DECIDES + _MCO_ONLY})
     return p
 
 
@@ -124,10 +124,11 @@ def _plot(path, data, fit):
     return save(fig, path)
 
 
-# Options a .mco run decides itself (the file's layers, indices and photon count), with their defaults.
-_MCO_DECIDES = {"eta": None, "thickness": None, "g": None, "relative": False, "free_eta": False, "r_min": None,
-                "r_max": None, "solver": "levenberg_marquardt", "max_steps": 256, "fresnel": "poly", "plot": None}
-_MCO_ONLY = {"free_layers": None, "photons": None, "seed": 0}
+# Options a .mco run decides itself (the file's layers, indices and photon count), and options only a .mco run takes;
+# a given option is one that differs from the parser's default (recorded by add_parser as ``args.defaults``).
+_MCO_DECIDES = ("eta", "thickness", "g", "relative", "free_eta", "r_min", "r_max", "solver", "max_steps", "fresnel",
+                "plot")
+_MCO_ONLY = ("free_layers", "photons", "seed")
 
 
 def _flag(name: str) -> str:
@@ -137,8 +138,8 @@ def _flag(name: str) -> str:
 def _run_mco(args) -> int:
     from fitting import fit_mco, read_mco
 
-    for name, default in _MCO_DECIDES.items():
-        if getattr(args, name) != default:
+    for name in _MCO_DECIDES:
+        if getattr(args, name) != args.defaults[name]:
             raise CLIError(f"{_flag(name)} does not apply to an MCML run ({args.profile}): the file gives the "
                            "geometry, indices and photon count")
     if args.photons is not None and args.photons < 1000:
@@ -173,8 +174,8 @@ def run(args) -> int:
 
     if str(args.profile).lower().endswith(".mco"):
         return _run_mco(args)
-    for name, default in _MCO_ONLY.items():
-        if getattr(args, name) != default:
+    for name in _MCO_ONLY:
+        if getattr(args, name) != args.defaults[name]:
             raise CLIError(f"{_flag(name)} applies to MCML .mco runs only")
     if args.eta is None:
         raise CLIError("--eta is required for a profile file (an MCML .mco run carries its own)")

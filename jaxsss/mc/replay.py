@@ -62,9 +62,9 @@ from jax import lax
 from jaxtyping import Array, Float, Int
 
 from jaxsss import _config  # noqa: F401  (float64)
-from jaxsss.validate import check_range
+from jaxsss.validate import check_integer, check_range
 from jaxsss.mc._kernel import _hg_cos, _interface, _spin, _uniform
-from jaxsss.mc.engine import entry_state
+from jaxsss.mc.engine import _auto_lanes, entry_state
 from jaxsss.mc.stack import Stack
 
 __all__ = ["ReplayEstimate", "ReplaySample", "record", "replay", "rebin"]
@@ -234,11 +234,6 @@ class ReplaySample(eqx.Module):
         return int(np.sum(np.asarray(self.side) == SIDE_CAP))
 
 
-def _lanes(photons: int) -> int:
-    """A power of two near ``photons / 64`` in ``[256, 4096]`` (idle lanes in a batch's tail cost little then)."""
-    return int(min(max(2 ** int(math.floor(math.log2(max(photons // 64, 1)))), 256), 4096))
-
-
 def _bins(radius: np.ndarray, r_edges: np.ndarray) -> np.ndarray:
     i = np.searchsorted(r_edges, radius, side="right") - 1
     return np.where((radius >= r_edges[0]) & (radius < r_edges[-1]), i, r_edges.size - 1).astype(np.int32)
@@ -267,7 +262,7 @@ def record(stack: Stack, photons: int, *, r_edges, seed: int = 0, max_path: floa
         max_path: the cap on a walk's total path length, mm (``> 0``; default no cap but ``max_steps``).
         max_steps: the cap on a walk's events (scatterings + interface hits), ``>= 1``.
         batch_size: photons per compiled call (the per-photon buffers have this many rows).
-        lanes: photons advanced in lock-step (default: :func:`_lanes`).
+        lanes: photons advanced in lock-step (default: the engine's, ``batch_photons / 64`` rounded to a power of two in [256, 4096]).
 
     Returns:
         :class:`ReplaySample`.
@@ -278,9 +273,8 @@ def record(stack: Stack, photons: int, *, r_edges, seed: int = 0, max_path: floa
     if not isinstance(stack, Stack):
         raise ValueError(f"record(stack={stack!r}) must be a jaxsss.mc.Stack")
     for name, v, lo in (("photons", photons, 2), ("seed", seed, 0), ("max_steps", max_steps, 1),
-                        ("batch_size", batch_size, 1)):
-        if isinstance(v, bool) or not isinstance(v, (int, np.integer)) or v < lo:
-            raise ValueError(f"record({name}={v!r}) must be an integer in the allowed range [{lo}, inf)")
+                        ("batch_size", batch_size, 1)) + ((("lanes", lanes, 1),) if lanes is not None else ()):
+        check_integer(v, name, lo, owner="record")
     if max_path != math.inf:
         max_path = float(check_range(max_path, "max_path", 0.0, None, lo_open=True, owner="record"))
     sigma_s0 = np.asarray(stack.sigma_s)
@@ -290,7 +284,7 @@ def record(stack: Stack, photons: int, *, r_edges, seed: int = 0, max_path: floa
                          "reference run needs scattering in every layer")
     r_edges = _check_edges(r_edges)
     photons, batch_size = int(photons), int(min(batch_size, photons))
-    lanes = _lanes(batch_size) if lanes is None else int(lanes)
+    lanes = _auto_lanes(batch_size) if lanes is None else int(lanes)
     cfg = _RecordConfig(num_layers=stack.num_layers, lanes=lanes, rows=batch_size, max_steps=int(max_steps))
     R_sp, ux0, uz0 = entry_state(stack.n_above, float(np.asarray(stack.n)[0]), 0.0)
     params = {k: jnp.asarray(v, jnp.float64) for k, v in {
