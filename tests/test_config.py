@@ -44,10 +44,16 @@ def test_compiled_programs_persist_across_processes(tmp_path):
     env = {**os.environ, CACHE_ENV: str(cache), "JAX_PLATFORMS": "cpu"}
     env.pop("JAX_COMPILATION_CACHE_DIR", None)
     assert _run(env) == str(cache)
-    entries = sorted(p.name for p in Path(cache).rglob("*") if p.is_file())
-    assert entries, "the first process wrote nothing to the compilation cache"
-    _run(env)  # the second process loads (and must not duplicate) the entry
-    assert sorted(p.name for p in Path(cache).rglob("*") if p.is_file()) == entries
+
+    def program_entries():  # the jitted lambda's cache files and their modification times
+        return {p.name: p.stat().st_mtime_ns for p in Path(cache).rglob("jit__lambda*") if p.is_file()}
+
+    first = program_entries()
+    assert len(first) == 1, f"the first process wrote {sorted(first)} for the program (expected one entry)"
+    # The second process loads the entry: no new key and no rewrite. (Small helper programs such as a broadcast may
+    # or may not be written, depending on whether their compile time crossed MIN_COMPILE_SECONDS on a loaded machine.)
+    _run(env)
+    assert program_entries() == first
 
 
 def test_cache_can_be_turned_off(tmp_path):
