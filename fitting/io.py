@@ -7,8 +7,17 @@ after ``r_mm``; names are case-insensitive apart from ``R``, and ``r [mm]`` is a
 decides: 2 = ``r, R``; 3 = ``r, R, R_stderr``; 4 = ``r, R, T, T_stderr``; 5 = all. Units: ``r`` in mm; ``R``, ``T``
 and their standard errors in 1/mm^2 (absolute profiles per incident photon) or arbitrary units (relative).
 
+Binned layout (MCML's radial arrays, as in ``../shared/reference/mcml/*.csv``): a header ``r_lo_mm, r_hi_mm`` then
+the value columns, where ``Rd_per_mm2`` and ``Tt_per_mm2`` are accepted for ``R`` and ``T``. Each row is an annulus
+average over ``[r_lo, r_hi)``; the profile's radius is the bin centre (as :func:`fitting.mco.read_mco` does). When the
+first comment line says the file is an MCML run (``# MCML ...``) with ``photons=N``: the last bin is dropped (MCML
+adds every photon beyond the grid to it), standard errors absent from the file come from the photon count
+(:func:`fitting.mco.poisson_stderr`, an empty bin counted as one photon) and a ``T`` column that is zero everywhere
+(a half-space) is dropped.
+
 Checks: every cell numeric and finite, ``r >= 0`` and strictly increasing, standard errors ``> 0``, no missing or
-extra cells. A bad file raises :class:`ProfileFileError` (a ``ValueError``) naming the file, line and column.
+extra cells; binned rows contiguous (``r_lo`` of a row is the previous ``r_hi``) with ``r_hi > r_lo``. A bad file
+raises :class:`ProfileFileError` (a ``ValueError``) naming the file, line and column.
 
 NumPy: a ``.npy`` array of shape ``(N, k)`` with the same column layout as a header-less CSV, or a ``.npz`` with
 arrays named ``r_mm``, ``R``, ``R_stderr``, ``T``, ``T_stderr``; errors name the file, row and column.
@@ -17,12 +26,13 @@ arrays named ``r_mm``, ``R``, ``R_stderr``, ``T``, ``T_stderr``; errors name the
 from __future__ import annotations
 
 import math
+import re
 from pathlib import Path
 from typing import NamedTuple
 
 import numpy as np
 
-__all__ = ["COLUMNS", "ProfileData", "ProfileFileError", "load_profile_npy", "read_profile", "read_profile_csv"]
+__all__ = ["BIN_EDGES", "COLUMNS", "ProfileData", "ProfileFileError", "load_profile_npy", "read_profile", "read_profile_csv"]
 
 COLUMNS = ("r_mm", "R", "R_stderr", "T", "T_stderr")
 """Column names, in file order."""
@@ -33,7 +43,10 @@ _BY_COUNT = {
     4: ("r_mm", "R", "T", "T_stderr"),
     5: COLUMNS,
 }
-_ALIASES = {"r_mm": "r_mm", "r[mm]": "r_mm", "r [mm]": "r_mm", "r (mm)": "r_mm"}
+_ALIASES = {"r_mm": "r_mm", "r[mm]": "r_mm", "r [mm]": "r_mm", "r (mm)": "r_mm",
+            "rd_per_mm2": "R", "tt_per_mm2": "T"}
+BIN_EDGES = ("r_lo_mm", "r_hi_mm")
+"""The first two columns of the binned layout (annulus edges, mm)."""
 
 
 def _canonical(name: str):
@@ -60,8 +73,10 @@ class ProfileData(NamedTuple):
 
 
 def _parse_header(cells, path, line_no):
-    names = []
-    for col, cell in enumerate(cells, start=1):
+    """Column names of a header line: ``r_mm, ...`` or the binned ``r_lo_mm, r_hi_mm, ...``."""
+    binned = tuple(c.strip().lower() for c in cells[:2]) == BIN_EDGES
+    names = list(BIN_EDGES) if binned else []
+    for col, cell in enumerate(cells[len(names):], start=len(names) + 1):
         key = cell.strip()
         canon = _canonical(key)
         if canon is None:
@@ -71,7 +86,7 @@ def _parse_header(cells, path, line_no):
         if canon in names:
             raise ProfileFileError(f"{path}: line {line_no}, column {col}: column {canon!r} appears twice")
         names.append(canon)
-    _check_layout(names, path, f"line {line_no}")
+    _check_layout(["r_mm", *names[2:]] if binned else names, path, f"line {line_no}")
     return tuple(names)
 
 
@@ -125,10 +140,13 @@ def read_profile_csv(path) -> ProfileData:
     except OSError as err:
         raise ProfileFileError(f"{path}: cannot read the file: {err.strerror or err}") from None
     names = None
-    rows, line_of_row = [], []
+    rows, line_of_row, comments = [], [], []
     for line_no, raw in enumerate(text.splitlines(), start=1):
-        line = raw.split("#", 1)[0].strip()
+        line, _, comment = raw.partition("#")
+        line = line.strip()
         if not line:
+            if comment.strip() and not rows:
+                comments.append(comment.strip())
             continue
         cells = [c.strip() for c in line.split(",")]
         if names is None:
@@ -172,8 +190,48 @@ def read_profile_csv(path) -> ProfileData:
     def locate(i, name):
         return f"line {line_of_row[i]}, column {names.index(name) + 1} ({name})"
 
+    if names[:2] == BIN_EDGES:
+        columns = _from_bins(columns, comments, locate, path)
     _validate_columns(columns, locate, path)
     return _to_data(columns, str(path))
+
+
+def _mcml_photons(comments) -> int | None:
+    """The photon count of an MCML run named in the file's first comment line (``# MCML ... photons=N``), else None."""
+    if not comments or not comments[0].startswith("MCML"):
+        return None
+    found = re.search(r"photons\s*=\s*([0-9.eE+]+)", comments[0])
+    return int(float(found.group(1))) if found else None
+
+
+def _from_bins(columns: dict, comments, locate, path) -> dict:
+    """Binned columns -> ``r_mm`` at the bin centres (see the module docstring for MCML files)."""
+    lo, hi = columns.pop("r_lo_mm"), columns.pop("r_hi_mm")
+    for i in range(len(lo)):
+        if not hi[i] > lo[i]:
+            raise ProfileFileError(f"{path}: {locate(i, 'r_hi_mm')}: bin [{lo[i]:g}, {hi[i]:g}) mm is empty; "
+                                   "r_hi_mm must be greater than r_lo_mm")
+        if i and lo[i] != hi[i - 1]:
+            raise ProfileFileError(f"{path}: {locate(i, 'r_lo_mm')}: bin starts at {lo[i]:g} mm but the previous one "
+                                   f"ends at {hi[i - 1]:g} mm; bins must be contiguous")
+    columns = {"r_mm": 0.5 * (lo + hi), **columns}
+    photons = _mcml_photons(comments)
+    if photons is None:
+        return columns
+    from fitting.mco import poisson_stderr  # fitting.mco imports this module
+
+    area = np.pi * (hi**2 - lo**2)
+    # MCML's last radial bin also collects every photon beyond the grid: not a profile value.
+    keep = slice(0, len(lo) - 1)
+    out = {"r_mm": columns["r_mm"][keep]}
+    for value in ("R", "T"):
+        if value not in columns or (value == "T" and not np.any(columns["T"])):
+            continue
+        out[value] = columns[value][keep]
+        se = columns.get(f"{value}_stderr")
+        out[f"{value}_stderr"] = (se if se is not None else poisson_stderr(columns[value], photons, area,
+                                                                           empty_as_one=True))[keep]
+    return out
 
 
 def _to_data(columns: dict, source: str) -> ProfileData:

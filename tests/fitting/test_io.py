@@ -70,3 +70,42 @@ def test_npy_and_npz(tmp_path):
     np.save(tmp_path / "shape.npy", np.zeros((3, 7)))
     with pytest.raises(ProfileFileError, match="shape"):
         load_profile_npy(tmp_path / "shape.npy")
+
+
+def test_binned_csv_uses_bin_centres(tmp_path):
+    """Annulus rows ``r_lo_mm, r_hi_mm, ...`` (no MCML comment): radii at the centres, every bin kept, no errors."""
+    p = tmp_path / "bins.csv"
+    p.write_text("r_lo_mm, r_hi_mm, Rd_per_mm2\n0, 0.1, 2.0\n0.1, 0.2, 1.0\n0.2, 0.3, 0.5\n")
+    d = read_profile(p)
+    np.testing.assert_allclose(d.r, [0.05, 0.15, 0.25])
+    np.testing.assert_array_equal(d.R, [2.0, 1.0, 0.5])
+    assert d.R_stderr is None and d.T is None
+
+
+def test_binned_mcml_csv_drops_overflow_bin_and_adds_errors(tmp_path):
+    """An MCML comment with a photon count: the overflow bin goes, errors follow the photon count, zero T is dropped."""
+    p = tmp_path / "mcml.csv"
+    p.write_text("# MCML 1.2.2 run: photons=10000\n# totals\nr_lo_mm,r_hi_mm,Rd_per_mm2,Tt_per_mm2\n"
+                 "0,0.1,2.0,0\n0.1,0.2,1.0,0\n0.2,0.3,0.5,0\n0.3,0.4,9.0,0\n")
+    d = read_profile(p)
+    np.testing.assert_allclose(d.r, [0.05, 0.15, 0.25])
+    area = np.pi * (np.array([0.1, 0.2, 0.3]) ** 2 - np.array([0.0, 0.1, 0.2]) ** 2)
+    frac = d.R * area  # fraction of the photons in each annulus: Poisson error sqrt(p (1 - p) / N) / area
+    np.testing.assert_allclose(d.R_stderr, np.sqrt(frac * (1 - frac) / 10000) / area)
+    assert d.T is None
+
+
+@pytest.mark.parametrize(
+    "rows, where",
+    [
+        ("0, 0.1, 2.0\n0.1, 0.1, 1.0\n", "line 3, column 2 (r_hi_mm): bin [0.1, 0.1) mm is empty"),
+        ("0, 0.1, 2.0\n0.2, 0.3, 1.0\n", "line 3, column 1 (r_lo_mm): bin starts at 0.2 mm"),
+        ("0, 0.1, 2.0\n0.1, 0.2, x\n", "line 3, column 3 (R): 'x' is not a number"),
+    ],
+)
+def test_bad_binned_csv_names_line_and_column(tmp_path, rows, where):
+    p = tmp_path / "bad_bins.csv"
+    p.write_text("r_lo_mm, r_hi_mm, Rd_per_mm2\n" + rows)
+    with pytest.raises(ProfileFileError) as err:
+        read_profile_csv(p)
+    assert str(p) in str(err.value) and where in str(err.value)

@@ -217,3 +217,15 @@ def test_jaxsss_fit_reports_a_bad_mco_file_in_one_line(capsys, tmp_path):
     lines = err.strip().splitlines()
     assert code == 2 and out == "" and len(lines) == 1, err
     assert lines[0].startswith(f"jaxsss: error: {path}: line 300: block Tt_r ends after"), err
+
+
+@pytest.mark.parametrize("path", shared_runs(), ids=lambda p: p.stem)
+def test_csv_twin_reads_as_the_same_profile(path):
+    """``read_profile`` on the shared CSV (binned layout) gives the ``.mco`` file's profile: centres, values, errors."""
+    from_csv, from_mco = read_profile(path.with_suffix(".csv")), read_profile(path)
+    np.testing.assert_allclose(from_csv.r, from_mco.r, rtol=0, atol=1e-12)
+    for name in ("R", "R_stderr", "T", "T_stderr"):
+        a, b = getattr(from_csv, name), getattr(from_mco, name)
+        assert (a is None) == (b is None), name
+        if a is not None:
+            np.testing.assert_allclose(a, b, rtol=1e-4, err_msg=name)
