@@ -5,7 +5,22 @@ Every registered render method exposes ``image = prepared.image(medium)`` once i
 :func:`fit_image` looks the method up, builds that function on a random subset of the object's pixels,
 starts from the best of a small grid of (Rd, l_d) candidates per channel (through the reparameterisation, so the start
 is physically sensible without knowing the answer), and runs an Optimistix least-squares solve in the
-log-parameters. Residuals are relative: ``(model - target) / mean(target)`` per channel, on the chosen pixels.
+log-parameters. Residuals are relative: ``(model - target) / mean(target)`` per channel, on the chosen pixels, or
+``(model - target) / target_stderr`` when the target's per-pixel standard errors are given.
+
+Several views (issue 17, item 4). One light on a sphere fixes ``Rd`` well but barely ``l_d``: the image is mostly the
+total diffuse reflectance times the irradiance, and ``l_d`` shows only in the blur at shadow edges and the
+terminator. ``scene`` and ``target_image`` may be sequences (the same object and material under several lights or
+from several cameras); their residuals are stacked into one least-squares problem.
+
+Standard errors. At the solution the Jacobian ``J`` of the weighted residuals gives ``Cov(theta) = s^2 (J^T J)^-1``
+in ``theta = (log sigma_a, log sigma_s')``; ``s^2`` is the residual variance ``RSS / (m - p)`` for relative
+residuals, and ``max(1, RSS / (m - p))`` with ``target_stderr`` (inflated when the model misses by more than the
+target's noise, as a path-traced reference shows it: the model's own error then sets the uncertainty). ``(Rd, l_d)``
+and their errors follow by the delta method through :func:`jaxsss.to_rd_ld`. A channel is **identifiable** when
+both coefficients have relative standard errors at most :data:`REL_STDERR_LIMIT` and their correlation is at most
+:data:`fitting.CORRELATION_LIMIT`; otherwise the result's ``warnings`` say which parameter the views do not constrain
+and what they do constrain (usually ``Rd``).
 
 Fixed during the fit: ``eta`` and ``g`` (from the scene), everything geometric (sample positions, octree centroids,
 cache positions, photon walks), and the plan's shortcuts that depend on the material (cut-off radius, shared channel)
@@ -24,13 +39,16 @@ import numpy as np
 import optimistix as optx
 
 import jaxsss
+from fitting.result import CORRELATION_LIMIT
 from fitting.solvers import resolve_solver
 
-__all__ = ["LD_CANDIDATES_MM", "RD_CANDIDATES", "ImageFit", "fit_image"]
+__all__ = ["LD_CANDIDATES_MM", "RD_CANDIDATES", "REL_STDERR_LIMIT", "ImageFit", "fit_image"]
 
 RD_CANDIDATES = (0.2, 0.5, 0.8, 0.95)
 LD_CANDIDATES_MM = (0.3, 1.0, 3.0, 10.0)
 """The start grid: 16 (Rd, l_d) pairs per channel, each a full image evaluation on the fit's pixels."""
+REL_STDERR_LIMIT = 0.3
+"""A coefficient whose relative standard error exceeds this is reported as not constrained by the views."""
 
 
 class ImageFit(eqx.Module):
@@ -41,8 +59,15 @@ class ImageFit(eqx.Module):
         start_sigma_a, start_sigma_s_prime: ``(C,)`` the grid start.
         result: the Optimistix ``RESULTS`` of the solve (``successful`` when converged).
         n_steps: solver steps taken.
-        rms_relative: RMS of the relative residuals at the solution.
-        n_pixels: pixels used.
+        rms_relative: RMS of the relative residuals ``(model - target) / mean(target)`` at the solution.
+        sigma_a_stderr, sigma_s_prime_stderr: ``(C,)`` standard errors, 1/mm (module docstring).
+        rd, rd_stderr: ``(C,)`` total diffuse reflectance (Eq. 15) at the solution and its standard error.
+        ld, ld_stderr: ``(C,)`` diffuse mean free path ``1 / sigma_tr`` (mm) and its standard error.
+        correlation: ``(C,)`` correlation of ``log sigma_a`` and ``log sigma_s'``.
+        identifiable: ``(C,)`` booleans (module docstring).
+        warnings: what the views do not constrain, one line per channel concerned.
+        n_pixels: pixels used, over all views.
+        n_views: number of (scene, target) pairs.
         seconds: ``{"prepare": ..., "compile": ..., "start": ..., "solve": ...}`` (compilation of the residuals and
             the solve apart; a second fit with the same pixel count and eps reuses the compilation).
     """
@@ -54,8 +79,18 @@ class ImageFit(eqx.Module):
     result: optx.RESULTS
     n_steps: jax.Array
     rms_relative: jax.Array
+    sigma_a_stderr: jax.Array
+    sigma_s_prime_stderr: jax.Array
+    rd: jax.Array
+    rd_stderr: jax.Array
+    ld: jax.Array
+    ld_stderr: jax.Array
+    correlation: jax.Array
+    identifiable: jax.Array
     n_pixels: int = eqx.field(static=True)
     seconds: dict = eqx.field(static=True)
+    warnings: tuple = eqx.field(static=True, default=())
+    n_views: int = eqx.field(static=True, default=1)
 
     @property
     def converged(self) -> bool:
@@ -70,7 +105,11 @@ class ImageFit(eqx.Module):
             "sigma_a": self.sigma_a, "sigma_s_prime": self.sigma_s_prime,
             "start_sigma_a": self.start_sigma_a, "start_sigma_s_prime": self.start_sigma_s_prime,
             "converged": self.converged, "message": self.message, "n_steps": self.n_steps,
-            "rms_relative": self.rms_relative, "n_pixels": self.n_pixels, "seconds": self.seconds,
+            "rms_relative": self.rms_relative, "sigma_a_stderr": self.sigma_a_stderr,
+            "sigma_s_prime_stderr": self.sigma_s_prime_stderr, "rd": self.rd, "rd_stderr": self.rd_stderr,
+            "ld": self.ld, "ld_stderr": self.ld_stderr, "correlation": self.correlation,
+            "identifiable": np.asarray(self.identifiable).tolist(), "warnings": list(self.warnings),
+            "n_pixels": self.n_pixels, "n_views": self.n_views, "seconds": self.seconds,
         })
 
 
@@ -93,9 +132,11 @@ def _medium(theta, eta, g, fresnel):
 
 @eqx.filter_jit
 def _residuals(theta, args):
-    prepared, target, scale, mask, eta, g, fresnel = args
-    img = prepared.image(_medium(theta, eta, g, fresnel))
-    return jnp.where(mask[..., None], (img - target) / scale, 0.0).reshape(-1)
+    """Weighted residuals of every view, stacked: ``(model - target) * weight`` on each view's fit pixels."""
+    views, eta, g, fresnel = args
+    medium = _medium(theta, eta, g, fresnel)
+    return jnp.concatenate([jnp.where(mask[..., None], (prepared.image(medium) - target) * weight, 0.0).reshape(-1)
+                            for prepared, target, weight, mask in views])
 
 
 @eqx.filter_jit
@@ -119,52 +160,142 @@ def _grid_start(residuals, args, eta, n_channels):
     return sa[best, np.arange(n_channels)], ss[best, np.arange(n_channels)]
 
 
+def _check_target(target_image, scene, name: str) -> np.ndarray:
+    target = np.asarray(target_image, dtype=np.float64)
+    w, h = scene.camera.resolution
+    if target.ndim != 3 or target.shape[:2] != (h, w):
+        raise ValueError(f"fit_image({name}=...) has shape {target.shape}; the scene's camera gives ({h}, {w}, C)")
+    if not np.isfinite(target).all() or (target < 0).any():
+        raise ValueError(f"fit_image({name}=...) must be finite and non-negative")
+    return target
+
+
+def _as_views(scene, target_image, target_stderr):
+    """``(scenes, targets, stderrs)`` as equal-length lists (one view, or sequences)."""
+    many = isinstance(scene, (list, tuple))
+    scenes = list(scene) if many else [scene]
+    targets = list(target_image) if many else [target_image]
+    if not scenes:
+        raise ValueError("fit_image(scene=...) is an empty sequence; give at least one scene")
+    if len(targets) != len(scenes):
+        raise ValueError(f"fit_image(target_image=...) has {len(targets)} images for {len(scenes)} scenes; give one "
+                         "per scene")
+    stderrs = [None] * len(scenes) if target_stderr is None else (list(target_stderr) if many else [target_stderr])
+    if len(stderrs) != len(scenes):
+        raise ValueError(f"fit_image(target_stderr=...) has {len(stderrs)} images for {len(scenes)} scenes")
+    return scenes, targets, stderrs
+
+
+FD_STEP = 1e-5
+"""Central-difference step in ``log sigma`` for the Jacobian behind the standard errors (relative error ~1e-10)."""
+
+
+def _uncertainty(theta, residuals, args, n_res: int, absolute: bool):
+    """Standard errors and ``(Rd, l_d)`` at the solution (module docstring). The Jacobian is taken by central
+    differences of the already compiled ``residuals`` (2 p evaluations): ``jax.jacfwd`` gives the same to 1e-10 but
+    costs a compilation of its own, longer than the whole fit on small images."""
+    res = np.asarray(residuals(theta, args))
+    steps = FD_STEP * np.eye(theta.shape[0])
+    jac = np.stack([(np.asarray(residuals(theta + h, args)) - np.asarray(residuals(theta - h, args))) / (2 * FD_STEP)
+                    for h in steps], axis=1)
+    p = theta.shape[0]
+    s2 = float(res @ res) / max(n_res - p, 1)
+    if absolute:
+        s2 = max(1.0, s2)
+    cov = s2 * np.linalg.pinv(jac.T @ jac)
+    c = p // 2
+    se_log = np.sqrt(np.maximum(np.diag(cov), 0.0))
+    corr = cov[np.arange(c), c + np.arange(c)] / np.maximum(se_log[:c] * se_log[c:], 1e-300)
+
+    def rd_ld(th):
+        rd, ld = jaxsss.to_rd_ld(_medium(th, *args[1:]))
+        return jnp.concatenate([rd, ld])
+
+    grad = np.asarray(jax.jacfwd(rd_ld)(theta))
+    rd_ld_value = np.asarray(rd_ld(theta))
+    se_rd_ld = np.sqrt(np.maximum(np.diag(grad @ cov @ grad.T), 0.0))
+    return se_log, corr, rd_ld_value, se_rd_ld
+
+
+def _identifiability(se_log, corr, rd, se_rd):
+    """Per channel: identifiable, and a warning line for each channel that is not."""
+    c = len(corr)
+    rel_a, rel_s = se_log[:c], se_log[c:]  # delta method: se(sigma) / sigma = se(log sigma)
+    ok = (rel_a <= REL_STDERR_LIMIT) & (rel_s <= REL_STDERR_LIMIT) & (np.abs(corr) <= CORRELATION_LIMIT)
+    warnings = []
+    for k in np.flatnonzero(~ok):
+        loose = [name for name, rel in (("sigma_a", rel_a[k]), ("sigma_s'", rel_s[k])) if rel > REL_STDERR_LIMIT]
+        why = (f"{' and '.join(loose)} not constrained (relative standard errors {rel_a[k]:.0%} / {rel_s[k]:.0%})"
+               if loose else f"sigma_a and sigma_s' correlated ({corr[k]:+.4f})")
+        warnings.append(f"channel {k}: {why}; Rd = {rd[k]:.4g} +- {se_rd[k]:.2g} is what these views fix; add lights "
+                        "or views that show the blur (shadow edges, the terminator) to fix l_d")
+    return ok, tuple(warnings)
+
+
 def fit_image(scene, target_image, *, method: str = "hierarchical", max_pixels: int | None = 4096,
-              solver: str = "levenberg_marquardt", rtol: float = 1e-8, atol: float = 1e-10, max_steps: int = 100,
-              seed: int = 0, progress: bool = False, **options) -> ImageFit:
+              target_stderr=None, solver: str = "levenberg_marquardt", rtol: float = 1e-8, atol: float = 1e-10,
+              max_steps: int = 100, seed: int = 0, progress: bool = False, **options) -> ImageFit:
     """Fit ``sigma_a`` and ``sigma_s'`` (per channel) of the scene's material to ``target_image``.
 
     Args:
         scene: the :class:`jaxsss.render.Scene` whose geometry, lights, camera, eta and g produced the target (its
-            own sigma_a and sigma_s' are NOT used).
-        target_image: ``(H, W, C)`` linear radiance at the camera's resolution.
+            own sigma_a and sigma_s' are NOT used), or a sequence of scenes of the same material (several lights
+            or views; eta and g must agree).
+        target_image: ``(H, W, C)`` linear radiance at the camera's resolution, or one per scene.
+        target_stderr: optional per-pixel standard errors of the target(s), same shapes, ``> 0`` on the lit pixels
+            (a path-traced reference's noise): residuals are weighted by them and the standard errors are absolute
+            (inflated by the reduced chi^2 when above 1).
         method: a registered render method (:func:`jaxsss.render.method_names`: hierarchical, direct, cached,
             photon, layered). The cached method places its caches once with the scene's own material (its ``l_d``
             and split-disk constant) and keeps them; the photon method keeps its traced walks (source power is
             reweighted, Eq. 8); the layered method fits the outer layer (``[material]``), the layers below fixed.
         **options: the method's options (e.g. ``eps``; cached ``error_bound``; photon ``n_photons``; layered
             ``samples``), as for :func:`jaxsss.render.render`.
-        max_pixels: fit on at most this many lit pixels, chosen at random (``None``: all of them).
+        max_pixels: fit on at most this many lit pixels per view, chosen at random (``None``: all of them).
         solver: a name in :data:`fitting.SOLVERS`.
         rtol, atol, max_steps: Optimistix termination.
         seed: pixel-subset seed.
 
     Returns:
-        An :class:`ImageFit`; check ``converged``.
+        An :class:`ImageFit`; check ``converged``, ``identifiable`` and ``warnings``.
     """
     from jaxsss.render import prepare_method, resolve_method
 
-    target = np.asarray(target_image, dtype=np.float64)
-    w, h = scene.camera.resolution
-    if target.ndim != 3 or target.shape[:2] != (h, w):
-        raise ValueError(f"fit_image(target_image=...) has shape {target.shape}; the scene's camera gives "
-                         f"({h}, {w}, C)")
-    if not np.isfinite(target).all() or (target < 0).any():
-        raise ValueError("fit_image(target_image=...) must be finite and non-negative")
+    scenes, targets, stderrs = _as_views(scene, target_image, target_stderr)
+    entry = resolve_method(method)
+    mediums = [entry.params(s) for s in scenes]
+    eta, g, fresnel = mediums[0].eta, mediums[0].g, mediums[0].fresnel
+    for k, m in enumerate(mediums[1:], start=1):
+        same_g = (m.g is None and g is None) or (m.g is not None and g is not None and np.allclose(m.g, g))
+        if not (np.allclose(m.eta, eta) and same_g and m.fresnel == fresnel):
+            raise ValueError(f"fit_image(scene[{k}]): eta, g and fresnel must equal scene[0]'s (eta {m.eta} vs "
+                             f"{eta}, g {m.g} vs {g}): one material is fitted")
     seconds = {}
     t0 = time.perf_counter()
-    mask = _choose_pixels(target, max_pixels, seed)
-    entry = resolve_method(method)
-    prepared = prepare_method(scene, entry.name, pixel_mask=mask, fit=True, progress=progress, **options).state
+    views, relative = [], []
+    for k, (sc, tg, se) in enumerate(zip(scenes, targets, stderrs)):
+        name = "target_image" if len(scenes) == 1 else f"target_image[{k}]"
+        target = _check_target(tg, sc, name)
+        mask = _choose_pixels(target, max_pixels, seed + k)
+        prepared = prepare_method(sc, entry.name, pixel_mask=mask, fit=True, progress=progress, **options).state
+        scale = np.maximum(target[mask].mean(axis=0), 1e-300)
+        if se is None:
+            weight = np.broadcast_to(1.0 / scale, target.shape)
+        else:
+            se = np.asarray(se, dtype=np.float64)
+            if se.shape != target.shape or not np.all(np.isfinite(se)) or np.any(se[mask] <= 0):
+                raise ValueError(f"fit_image(target_stderr=...) for view {k} must have the target's shape "
+                                 f"{target.shape}, be finite, and be > 0 on the fitted pixels")
+            weight = 1.0 / np.where(se > 0, se, np.inf)
+        views.append((prepared, jnp.asarray(target), jnp.asarray(weight), jnp.asarray(mask)))
+        relative.append((prepared, jnp.asarray(target), jnp.asarray(np.broadcast_to(1.0 / scale, target.shape)),
+                         jnp.asarray(mask)))
     seconds["prepare"] = time.perf_counter() - t0
-    medium = entry.params(scene)
-    eta, g, fresnel = medium.eta, medium.g, medium.fresnel
-    n_channels = target.shape[-1]
-    scale = jnp.asarray(np.maximum(target[mask].mean(axis=0), 1e-300))
-    tgt, msk = jnp.asarray(target), jnp.asarray(mask)
+    n_channels = targets[0].shape[-1] if np.ndim(targets[0]) == 3 else 1
+    n_pixels = int(sum(int(v[3].sum()) for v in views))
 
     opt = resolve_solver(solver).make(rtol=rtol, atol=atol)
-    args = (prepared, tgt, scale, msk, eta, g, fresnel)
+    args = (tuple(views), eta, g, fresnel)
     theta_shape = jnp.zeros(2 * n_channels)
     # Compile first (timed apart): the residuals (the start grid) and the solve.
     t0 = time.perf_counter()
@@ -181,8 +312,16 @@ def fit_image(scene, target_image, *, method: str = "hierarchical", max_pixels: 
     sol = compiled(theta0, args, opt, max_steps)
     theta = jax.block_until_ready(sol.value)
     seconds["solve"] = time.perf_counter() - t0
-    res = _residuals(theta, args)
-    rms = jnp.sqrt(jnp.sum(res**2) / float(mask.sum() * n_channels))
+    res = residuals(theta, (tuple(relative), eta, g, fresnel))
+    rms = jnp.sqrt(jnp.sum(res**2) / float(n_pixels * n_channels))
+    t0 = time.perf_counter()
+    se_log, corr, rd_ld, se_rd_ld = _uncertainty(theta, residuals, args, n_pixels * n_channels,
+                                                 target_stderr is not None)
+    seconds["stderr"] = time.perf_counter() - t0
     c = n_channels
-    return ImageFit(jnp.exp(theta[:c]), jnp.exp(theta[c:]), jnp.asarray(sa0), jnp.asarray(ss0), sol.result,
-                    sol.stats["num_steps"], rms, int(mask.sum()), seconds)
+    ok, warnings = _identifiability(se_log, corr, rd_ld[:c], se_rd_ld[:c])
+    sa, ss = jnp.exp(theta[:c]), jnp.exp(theta[c:])
+    return ImageFit(sa, ss, jnp.asarray(sa0), jnp.asarray(ss0), sol.result, sol.stats["num_steps"], rms,
+                    sa * se_log[:c], ss * se_log[c:], jnp.asarray(rd_ld[:c]), jnp.asarray(se_rd_ld[:c]),
+                    jnp.asarray(rd_ld[c:]), jnp.asarray(se_rd_ld[c:]), jnp.asarray(corr), jnp.asarray(ok),
+                    n_pixels, seconds, warnings, len(views))

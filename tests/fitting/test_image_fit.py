@@ -1,0 +1,86 @@
+"""fit_image's views and uncertainties: several (scene, image) pairs in one fit, standard errors that cover the truth
+under known noise, an honest "not identifiable" where the image cannot fix l_d, and bad input named.
+
+Targets here are jaxsss's own renders plus known noise: these tests check the fit's bookkeeping (stacking views,
+weights, the covariance), not the model; the model is judged against path-traced references in tests/export.
+"""
+
+import numpy as np
+import pytest
+
+import jaxsss
+from fitting import fit_image
+from jaxsss.render import parse_scene, prepare
+from tests.render.test_renderer import _scene_dict
+
+MATERIAL = {"sigma_a": 0.08, "sigma_s_prime": 1.5, "eta": 1.3}
+TRUTH = np.array([0.08, 1.5])
+
+
+def _view(light, **kwargs):
+    d = _scene_dict(material=MATERIAL, lights=[light], camera={"position": [0.0, -30.0, 10.0],
+                    "look_at": [0.0, 0.0, 0.0], "fov_deg": 25.0, "resolution": [16, 16]}, **kwargs)
+    return parse_scene(d, path="<test>")
+
+
+def _target(scene, rel_noise, seed):
+    clean = np.asarray(prepare(scene, cutoff=False, share_channels=False)[0].image(scene.material.medium))
+    stderr = np.where(clean > 0, rel_noise * clean + 1e-12, 1.0)
+    noisy = np.clip(clean + stderr * np.random.default_rng(seed).standard_normal(clean.shape), 0.0, None)
+    return np.where(clean > 0, noisy, 0.0), stderr
+
+
+@pytest.fixture(scope="module")
+def two_views():
+    scenes = [_view({"type": "directional", "direction": [0.6, 0.3, -1.0], "intensity": 1.0}),
+              _view({"type": "point", "position": [-20.0, 5.0, 10.0], "intensity": 300.0})]
+    pairs = [_target(s, 0.02, seed) for seed, s in enumerate(scenes)]
+    return scenes, [p[0] for p in pairs], [p[1] for p in pairs]
+
+
+def test_two_views_recover_truth_within_their_standard_errors(two_views):
+    scenes, targets, stderrs = two_views
+    fit = fit_image(scenes, targets, target_stderr=stderrs, max_pixels=None)
+    assert fit.converged, fit.message
+    assert fit.n_views == 2 and fit.n_pixels == sum(int((t.sum(-1) > 0).sum()) for t in targets)
+    est = np.array([float(fit.sigma_a[0]), float(fit.sigma_s_prime[0])])
+    se = np.array([float(fit.sigma_a_stderr[0]), float(fit.sigma_s_prime_stderr[0])])
+    assert np.all(np.abs(est - TRUTH) < 4 * se), (est, se)
+    assert np.all(se / TRUTH < 0.1), se / TRUTH  # 2% pixel noise on ~400 pixels pins both coefficients
+    assert bool(fit.identifiable[0]) and not fit.warnings
+    # (Rd, l_d) and their errors follow from the same covariance.
+    assert 0 < float(fit.rd_stderr[0]) < 0.05 * float(fit.rd[0])
+    d = fit.to_dict()
+    assert d["n_views"] == 2 and len(d["sigma_a_stderr"]) == 3
+
+
+def test_uniformly_lit_slab_fixes_rd_but_not_l_d():
+    """Far from its edges, a slab under uniform light shows only Rd: the fit must say l_d is not constrained."""
+    scene = parse_scene(_scene_dict(
+        mesh={"builtin": "slab", "width": 60.0, "depth": 60.0, "thickness": 10.0}, material=MATERIAL,
+        lights=[{"type": "directional", "direction": [0.0, 0.0, -1.0], "intensity": 1.0}],
+        camera={"position": [0.0, 0.0, 200.0], "look_at": [0.0, 0.0, 0.0], "up": [0.0, 1.0, 0.0], "fov_deg": 2.0,
+                "resolution": [6, 6]},
+        render_opts={"density": 0.5, "single_scattering": "off"}), path="<test>")
+    target, stderr = _target(scene, 0.01, 3)
+    fit = fit_image(scene, target, target_stderr=stderr, max_pixels=None)
+    channels = fit.sigma_a.shape[0]  # the scalar material is rendered in every channel of the image
+    assert not np.any(fit.identifiable)
+    assert len(fit.warnings) == channels and all(f"channel {k}:" in w and "Rd =" in w for k, w in enumerate(fit.warnings))
+    # Rd itself is pinned to about the noise over the patch, whatever the fit did with l_d.
+    true_rd = np.asarray(jaxsss.medium_total_diffuse_reflectance(scene.material.medium))
+    assert np.all(np.abs(np.asarray(fit.rd) - true_rd) < 4 * np.asarray(fit.rd_stderr) + 1e-3 * true_rd)
+    assert np.all(np.asarray(fit.rd_stderr) < 0.02 * true_rd)
+
+
+def test_bad_views_are_named(two_views):
+    scenes, targets, _ = two_views
+    with pytest.raises(ValueError, match=r"1 images for 2 scenes"):
+        fit_image(scenes, targets[:1])
+    with pytest.raises(ValueError, match=r"empty sequence"):
+        fit_image([], [])
+    other = parse_scene({**_scene_dict(material={**MATERIAL, "eta": 1.4})}, path="<test>")
+    with pytest.raises(ValueError, match=r"scene\[1\]\): eta"):
+        fit_image([scenes[0], other], [targets[0], targets[0]])
+    with pytest.raises(ValueError, match="target_stderr"):
+        fit_image(scenes[0], targets[0], target_stderr=np.zeros_like(targets[0]))
