@@ -14,7 +14,8 @@ This package is installed with ``jaxsss`` and imports only its public API (``imp
   :data:`SOLVERS` (``levenberg_marquardt``, ``gauss_newton``, ``dogleg``).
 - I/O: :func:`read_profile_csv`, :func:`load_profile_npy`, :func:`read_profile` -> :class:`ProfileData`;
   :func:`read_mco` reads MCML 1.2.2's ``.mco`` output (:class:`McoRun`, in mm; ``read_profile`` dispatches ``.mco``);
-  :func:`fit_mco` fits such a run as it stands (transport-accurate: white MC or replay Monte Carlo).
+  :func:`fit_mco` fits such a run as it stands (transport-accurate: white MC or replay Monte Carlo);
+  :func:`fit_mc_slab` fits a slab's profile file by replay Monte Carlo (``jaxsss fit --model mc --thickness``).
 
 The Rd -> alpha' inversion and the (Rd, l_d) reparameterisation are closed-form physics and live in
 :mod:`jaxsss.reflectance` and :mod:`jaxsss.reparam`. - :func:`fit_image`: sigma_a and sigma_s' per channel from a rendered image (:class:`ImageFit`).
@@ -24,7 +25,7 @@ import jaxsss  # noqa: F401  (float64 before anything else)
 from fitting.image_fit import ImageFit, fit_image
 from fitting.io import COLUMNS, ProfileData, ProfileFileError, load_profile_npy, read_profile, read_profile_csv
 from fitting.mco import McoLayer, McoRun, read_mco
-from fitting.mco_fit import MCO_MODELS, McoFit, fit_mco
+from fitting.mco_fit import MCO_MODELS, McoFit, fit_mc_slab, fit_mco
 from fitting.models import FORWARD_MODELS, ForwardModel, entry_transmittance, register_model, resolve_model
 from fitting.replay_fit import ReplayData, ReplayFit, fit_replay, fit_slab_totals
 from fitting.profile_fit import FitWarning, fit_jacobian_wrt_data, fit_profile, fit_profiles
@@ -65,6 +66,7 @@ __all__ = [
     "fit_jacobian_wrt_data",
     "fit_profile",
     "fit_profiles",
+    "fit_mc_slab",
     "fit_mco",
     "fit_replay",
     "fit_slab_totals",

@@ -62,7 +62,9 @@ class ProfileFileError(ValueError):
 
 class ProfileData(NamedTuple):
     """One radial profile: radii (mm) and the measured ``R`` and/or ``T`` (shape ``(N,)`` each), with optional
-    per-point standard errors; ``source`` names where it came from (a path, or ``"<array>"``)."""
+    per-point standard errors; ``source`` names where it came from (a path, or ``"<array>"``); ``r_edges``
+    ``(N + 1,)``: the annuli's edges (mm) when the values are bin averages and the file says so (binned CSV, ``.mco``),
+    else ``None``."""
 
     r: np.ndarray
     R: np.ndarray | None = None
@@ -70,6 +72,7 @@ class ProfileData(NamedTuple):
     T: np.ndarray | None = None
     T_stderr: np.ndarray | None = None
     source: str = "<array>"
+    r_edges: np.ndarray | None = None
 
 
 def _parse_header(cells, path, line_no):
@@ -190,10 +193,11 @@ def read_profile_csv(path) -> ProfileData:
     def locate(i, name):
         return f"line {line_of_row[i]}, column {names.index(name) + 1} ({name})"
 
+    edges = None
     if names[:2] == BIN_EDGES:
-        columns = _from_bins(columns, comments, locate, path)
+        columns, edges = _from_bins(columns, comments, locate, path)
     _validate_columns(columns, locate, path)
-    return _to_data(columns, str(path))
+    return _to_data(columns, str(path))._replace(r_edges=edges)
 
 
 def _mcml_photons(comments) -> int | None:
@@ -204,8 +208,9 @@ def _mcml_photons(comments) -> int | None:
     return int(float(found.group(1))) if found else None
 
 
-def _from_bins(columns: dict, comments, locate, path) -> dict:
-    """Binned columns -> ``r_mm`` at the bin centres (see the module docstring for MCML files)."""
+def _from_bins(columns: dict, comments, locate, path) -> tuple[dict, np.ndarray]:
+    """Binned columns -> (columns with ``r_mm`` at the bin centres, the kept bins' edges); see the module docstring
+    for MCML files."""
     lo, hi = columns.pop("r_lo_mm"), columns.pop("r_hi_mm")
     for i in range(len(lo)):
         if not hi[i] > lo[i]:
@@ -217,7 +222,7 @@ def _from_bins(columns: dict, comments, locate, path) -> dict:
     columns = {"r_mm": 0.5 * (lo + hi), **columns}
     photons = _mcml_photons(comments)
     if photons is None:
-        return columns
+        return columns, np.append(lo, hi[-1])
     from fitting.mco import poisson_stderr  # fitting.mco imports this module
 
     area = np.pi * (hi**2 - lo**2)
@@ -231,7 +236,7 @@ def _from_bins(columns: dict, comments, locate, path) -> dict:
         se = columns.get(f"{value}_stderr")
         out[f"{value}_stderr"] = (se if se is not None else poisson_stderr(columns[value], photons, area,
                                                                            empty_as_one=True))[keep]
-    return out
+    return out, np.append(lo, hi[-1])[: len(lo)]
 
 
 def _to_data(columns: dict, source: str) -> ProfileData:

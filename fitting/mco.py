@@ -170,7 +170,8 @@ class McoRun(NamedTuple):
         T = T_se = None
         if not self.semi_infinite:
             T, T_se = self.Tt_r[keep], bin_standard_errors(self, self.Tt_r)[keep]
-        return ProfileData(r=r, R=R, R_stderr=R_se, T=T, T_stderr=T_se, source=self.source)
+        return ProfileData(r=r, R=R, R_stderr=R_se, T=T, T_stderr=T_se, source=self.source,
+                           r_edges=np.append(self.r_lo[keep], self.r_hi[self.nr - 2]))
 
 
 def poisson_stderr(value, photons: int, area=1.0, *, empty_as_one: bool = False):

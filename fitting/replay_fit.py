@@ -172,7 +172,9 @@ def _check_data(data: ReplayData):
             if data.mask is not None:
                 keep = np.asarray(data.mask, bool)
             else:
-                count = v * area * (data.photons if data.photons is not None else (v * area / se) ** 2)
+                # Expected photons per bin: N p from the photon count, else (v / se)^2 (a Poisson count's
+                # relative error is 1 / sqrt(count)).
+                count = v * area * data.photons if data.photons is not None else (v / se) ** 2
                 keep = (count >= MIN_COUNT) & (np.arange(v.size) < v.size - 1)
             idx = np.flatnonzero(keep)
             blocks.append((name, v[idx], se[idx], idx))

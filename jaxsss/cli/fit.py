@@ -37,7 +37,12 @@ Monte Carlo of the file's geometry with a trust region (seconds for a slab, up t
 half-space or a stack; --photons per simulation). The deepest layer is fitted, the others stay at the file's values
 (--free-layers chooses, top layer 0); the JSON's sigma_a and sigma_s_prime list the free layers, deepest first.
 --model dipole|multipole fits a one-layer run with a diffusion model for comparison. Options that the file decides
-(--eta, --thickness, --g, ...) are refused for a .mco file."""
+(--eta, --thickness, --g, ...) are refused for a .mco file.
+
+Slab profiles: --model mc with --thickness D (and --g, --eta) fits a profile file of a slab by the same replay Monte
+Carlo (R(r) and, when the file has it, T(r) with the unscattered beam, MCML's convention). The profile must carry
+standard errors and be bin averages: the binned CSV layout (r_lo_mm, r_hi_mm, Rd_per_mm2[, Tt_per_mm2], as MCML's
+CSV export) or centres of equal bins from r = 0. --photons and --seed apply; the fit range is the whole profile."""
 
 
 def add_parser(subparsers) -> argparse.ArgumentParser:
@@ -131,6 +136,27 @@ _MCO_DECIDES = ("eta", "thickness", "g", "relative", "free_eta", "r_min", "r_max
 _MCO_ONLY = ("free_layers", "photons", "seed")
 
 
+# A slab profile with --model mc is fitted by replay Monte Carlo (fitting.fit_mc_slab): these options do not apply.
+_SLAB_MC_REFUSES = ("relative", "free_eta", "r_min", "r_max", "solver", "max_steps", "fresnel", "plot")
+_SLAB_MC_TAKES = ("photons", "seed")
+
+
+def _run_mc_slab(args, data) -> int:
+    from fitting import fit_mc_slab
+
+    for name in _SLAB_MC_REFUSES:
+        if getattr(args, name) != args.defaults.get(name, None):
+            raise CLIError(f"{_flag(name)} does not apply to --model mc with --thickness (replay Monte Carlo fits "
+                           "the whole binned profile with its standard errors)")
+    if args.g is None:
+        raise CLIError("--model mc needs --g (the Henyey-Greenstein anisotropy of the slab)")
+    if args.photons is not None and args.photons < 1000:
+        raise CLIError(f"--photons {args.photons} must be >= 1000")
+    fit = fit_mc_slab(data, eta=args.eta, g=args.g, thickness=args.thickness, photons=args.photons or 100_000,
+                      seed=args.seed)
+    return _print_layer_fit(args, fit, f"slab {args.thickness:g} mm, eta {args.eta:g}, g {args.g:g}")
+
+
 def _flag(name: str) -> str:
     return "--" + name.replace("_", "-")
 
@@ -152,18 +178,25 @@ def _run_mco(args) -> int:
             raise CLIError(f"--free-layers {args.free_layers!r} is not a comma-separated list of integers") from None
     run = read_mco(args.profile)
     fit = fit_mco(run, model=args.model or "mc", free_layers=free, photons=args.photons or 100_000, seed=args.seed)
+    return _print_layer_fit(args, fit, f"MCML run, {len(run.layers)} layer(s), {run.photons:g} photons")
+
+
+def _print_layer_fit(args, fit, what: str) -> int:
+    """Print a :class:`fitting.McoFit` (table or JSON) and its warnings; the exit status."""
     if not np.all(np.isfinite(np.concatenate([fit.sigma_a, fit.sigma_s_prime]))):
-        raise CLIError(f"the fit of {run.source} produced a non-finite value; refusing to print it")
+        raise CLIError(f"the fit of {fit.source} produced a non-finite value; refusing to print it")
     if args.json:
-        print_json({**fit.to_dict(), "file": run.source})
+        print_json({**fit.to_dict(), "file": fit.source})
     else:
-        print(f"{run.source}: MCML run, {len(run.layers)} layer(s), {run.photons:g} photons; model {fit.model} "
-              f"({fit.method}), {fit.status}, {fit.simulations} simulations, {fit.seconds:.1f} s")
-        rows = [[str(i), f"{a:.5g} +- {sa:.2g}", f"{s_:.5g} +- {ss:.2g}", f"{ia:g}", f"{is_:g}"]
+        print(f"{fit.source}: {what}; model {fit.model} ({fit.method}), {fit.status}, {fit.simulations} simulations, "
+              f"{fit.seconds:.1f} s")
+        known = bool(np.all(np.isfinite(fit.input_sigma_a)))  # a .mco run's input; unknown for a profile file
+        rows = [[str(i), f"{a:.5g} +- {sa:.2g}", f"{s_:.5g} +- {ss:.2g}"] + ([f"{ia:g}", f"{is_:g}"] if known else [])
                 for i, a, sa, s_, ss, ia, is_ in zip(fit.free_layers, fit.sigma_a, fit.sigma_a_stderr,
                                                       fit.sigma_s_prime, fit.sigma_s_prime_stderr, fit.input_sigma_a,
                                                       fit.input_sigma_s_prime)]
-        print(format_table(["layer", "sigma_a (1/mm)", "sigma_s' (1/mm)", "run's sigma_a", "run's sigma_s'"], rows))
+        print(format_table(["layer", "sigma_a (1/mm)", "sigma_s' (1/mm)"]
+                           + (["run's sigma_a", "run's sigma_s'"] if known else []), rows))
     for text in fit.warnings:
         print(f"jaxsss: warning: {' '.join(text.split())}", file=sys.stderr)
     return 0 if fit.converged else 1
@@ -174,9 +207,11 @@ def run(args) -> int:
 
     if str(args.profile).lower().endswith(".mco"):
         return _run_mco(args)
+    slab_mc = (args.model == "mc" and args.thickness is not None)
     for name in _MCO_ONLY:
-        if getattr(args, name) != args.defaults[name]:
-            raise CLIError(f"{_flag(name)} applies to MCML .mco runs only")
+        if getattr(args, name) != args.defaults[name] and not (slab_mc and name in _SLAB_MC_TAKES):
+            also = " and to --model mc with --thickness" if name in _SLAB_MC_TAKES else ""
+            raise CLIError(f"{_flag(name)} applies to MCML .mco runs{also} only")
     if args.eta is None:
         raise CLIError("--eta is required for a profile file (an MCML .mco run carries its own)")
     args.model = args.model or "dipole"
@@ -185,6 +220,8 @@ def run(args) -> int:
     if args.max_steps < 1:
         raise CLIError(f"--max-steps {args.max_steps} must be >= 1")
     data = read_profile(args.profile)
+    if args.model == "mc" and args.thickness is not None:
+        return _run_mc_slab(args, data)
     # warn=False: the fit's warnings (fit.warnings) are printed below as one line each.
     fit = fit_profile(data, eta=args.eta, model=args.model, thickness=args.thickness, relative=args.relative,
                       free_eta=args.free_eta, r_min=args.r_min, r_max=args.r_max, solver=args.solver,

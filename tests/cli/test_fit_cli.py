@@ -71,7 +71,7 @@ def test_not_converged_exits_1_and_says_so(capsys, profile_csv):
         ("r_mm,R\n0.2,1.0\n0.1,0.5\n", ["--eta", ETA], "line 3, column 1 (r_mm)"),
         ("missing", ["--eta", ETA], "cannot read the file"),
         (None, [], "--eta is required for a profile file"),
-        (None, ["--eta", ETA, "--photons", 5000], "--photons applies to MCML .mco runs only"),
+        (None, ["--eta", ETA, "--photons", 5000], "--photons applies to MCML .mco runs and to --model mc with --thickness only"),
     ],
 )
 def test_user_errors_exit_2_with_one_line(capsys, profile_csv, tmp_path, body, args, match):
@@ -118,6 +118,22 @@ def test_an_mco_run_needs_no_other_argument(capsys):
 ])
 def test_mco_user_errors_exit_2_with_one_line(capsys, args, match):
     code, out, err = run_cli(capsys, "fit", MCO, *args)
+    assert code == 2 and out == ""
+    lines = err.strip().splitlines()
+    assert len(lines) == 1 and lines[0].startswith("jaxsss: error:") and match in lines[0], err
+
+
+@pytest.mark.parametrize("args, match", [
+    (["--relative"], "--relative does not apply to --model mc with --thickness"),
+    (["--r-min", "0.5"], "--r-min does not apply"),
+    (["--free-layers", "0"], "applies to MCML .mco runs"),
+])
+def test_slab_mc_user_errors_exit_2_with_one_line(capsys, tmp_path, args, match):
+    """``--model mc --thickness``: replay Monte Carlo of a slab profile; options it cannot honour are refused."""
+    csv = tmp_path / "slab.csv"
+    csv.write_text("r_lo_mm, r_hi_mm, Rd_per_mm2\n0, 0.1, 1.0\n0.1, 0.2, 0.5\n")
+    code, out, err = run_cli(capsys, "fit", csv, "--eta", "1.33", "--g", "0.9", "--model", "mc", "--thickness", "0.3",
+                             *args)
     assert code == 2 and out == ""
     lines = err.strip().splitlines()
     assert len(lines) == 1 and lines[0].startswith("jaxsss: error:") and match in lines[0], err

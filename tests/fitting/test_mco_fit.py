@@ -10,7 +10,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from fitting import ProfileFileError, fit_mco, read_mco
+from fitting import ProfileFileError, fit_mc_slab, fit_mco, read_mco
 from fitting.mco_fit import _free_layers
 from tests.fitting.test_mco import FIXTURE, shared_mcml_dir
 
@@ -60,3 +60,25 @@ def test_models_that_do_not_describe_the_run_are_refused():
         fit_mco(shared_mcml_dir() / "halfspace_n133_g0.mco", model="multipole")
     with pytest.raises(ValueError, match="model='foo'"):
         fit_mco(FIXTURE, model="foo")
+
+
+def test_slab_profile_file_fit_by_replay():
+    """``fit_mc_slab``: a slab's profile without its run (edges inferred from equal-bin centres) recovers MCML's input."""
+    run = read_mco(FIXTURE)
+    data = run.to_profile()._replace(r_edges=None)
+    fit = fit_mc_slab(data, eta=run.eta, g=run.layers[0].g, thickness=run.thickness, photons=50_000, seed=3)
+    assert fit.method == "replay" and fit.converged, fit.status
+    assert np.all(np.isnan(fit.input_sigma_a))
+    _within(fit._replace(input_sigma_a=np.array([run.layers[0].sigma_a]),
+                         input_sigma_s_prime=np.array([run.layers[0].sigma_s_prime])))
+
+
+def test_slab_profile_needs_errors_and_bins():
+    data = read_mco(FIXTURE).to_profile()
+    with pytest.raises(ValueError, match="standard errors"):
+        fit_mc_slab(data._replace(R_stderr=None), eta=1.33, g=0.9, thickness=0.3)
+    uneven = data._replace(r=data.r ** 1.1, r_edges=None)
+    with pytest.raises(ValueError, match="no bin edges"):
+        fit_mc_slab(uneven, eta=1.33, g=0.9, thickness=0.3)
+    with pytest.raises(ValueError, match="thickness"):
+        fit_mc_slab(data, eta=1.33, g=0.9, thickness=float("inf"))

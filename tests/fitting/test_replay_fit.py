@@ -130,3 +130,19 @@ def test_dilution_noise_matrix_matches_per_photon_sums():
     expect += d[sel].T @ d[sel] / sample.photons**2 / sigma[-1] ** 2
     np.testing.assert_allclose(noise, expect, rtol=1e-9)
     assert np.all(np.linalg.eigvalsh(noise) >= 0) and np.all(np.linalg.eigvalsh(A - noise) > 0)
+
+
+def test_bins_kept_from_standard_errors_match_those_from_the_photon_count():
+    """Without a photon count, a bin's expected photons are (value / stderr)^2: the same bins are kept as with it."""
+    from fitting.replay_fit import MIN_COUNT, _check_data
+
+    edges = np.linspace(0.0, 5.0, 51)
+    area = np.pi * np.diff(edges**2)
+    photons = 20_000
+    values = 0.5 * np.exp(-edges[1:] * 1.5) / (1 + edges[1:])  # per mm^2, falls by ~1e4 over the grid
+    by_count = _check_data(ReplayData(r_edges=edges, R_r=values, photons=photons))[0][0][3]
+    se = poisson_stderr(values, photons, area)
+    by_stderr = _check_data(ReplayData(r_edges=edges, R_r=values, R_r_stderr=se))[0][0][3]
+    assert 0 < len(by_count) < len(values) - 1  # the rule bites: some far bins hold fewer than MIN_COUNT photons
+    np.testing.assert_array_equal(by_stderr, by_count)
+    assert MIN_COUNT > 1
