@@ -16,6 +16,10 @@ name        parameters (defaults)                                  watertight   
             ``major_sections=64``, ``minor_sections=32`` (axis z)                 around z, ``v`` around the tube
 ``teapot``  ``size=60`` (height, mm), ``resolution=12``            no             the Bezier patch ``(u, v)`` of each
             (see :mod:`jaxsss.render.teapot`)                                     of the 32 patches
+``teapot_`` ``size=60`` (height, mm), ``grid=160``: the solid      yes            spherical, of the direction from the
+``closed``  the patches bound, remeshed by marching cubes                         bounding box's centre
+            (:func:`jaxsss.render.teapot.closed_teapot_mesh`;
+            path tracers need it to hold a medium)
 ==========  =====================================================  =============  ====================================
 
 Why these UVs: trimesh's ``is_watertight`` counts edges by vertex index, so a watertight mesh cannot duplicate
@@ -162,6 +166,16 @@ def _torus(major_radius=15.0, minor_radius=5.0, major_sections=64, minor_section
     return _textured(vertices, faces, uv)
 
 
+def _teapot_closed(size=60.0, grid=160) -> trimesh.Trimesh:
+    from jaxsss.render.teapot import closed_teapot_mesh
+
+    size = _positive("teapot_closed", size, "size")
+    grid = _count("teapot_closed", grid, "grid", 32, 512)
+    mesh = closed_teapot_mesh(size=size, grid=grid)
+    centre = mesh.bounds.mean(axis=0)
+    return _textured(mesh.vertices, mesh.faces, _spherical_uv(mesh.vertices - centre))
+
+
 def _teapot(size=60.0, resolution=12) -> trimesh.Trimesh:
     from jaxsss.render.teapot import teapot_mesh
 
@@ -177,6 +191,7 @@ BUILTIN_MESHES: dict[str, tuple[Callable[..., trimesh.Trimesh], dict]] = {
     "slab": (_slab, {"width": 100.0, "depth": 100.0, "thickness": 10.0, "subdivisions": 0}),
     "torus": (_torus, {"major_radius": 15.0, "minor_radius": 5.0, "major_sections": 64, "minor_sections": 32}),
     "teapot": (_teapot, {"size": 60.0, "resolution": 12}),
+    "teapot_closed": (_teapot_closed, {"size": 60.0, "grid": 160}),
 }
 
 
@@ -184,7 +199,7 @@ def builtin_mesh(name: str, **params) -> trimesh.Trimesh:
     """A built-in mesh in mm (see the module table), with per-vertex UVs in ``mesh.visual.uv``.
 
     Args:
-        name: one of :data:`BUILTIN_MESHES` (``sphere``, ``box``, ``slab``, ``torus``, ``teapot``).
+        name: one of :data:`BUILTIN_MESHES` (``sphere``, ``box``, ``slab``, ``torus``, ``teapot``, ``teapot_closed``).
         **params: that mesh's parameters; missing ones take their defaults.
 
     Raises:

@@ -16,7 +16,7 @@ from jaxsss.render.meshes import (
 )
 from jaxsss.render.teapot import TEAPOT_HEIGHT, load_teapot_patches, teapot_mesh
 
-WATERTIGHT = ["sphere", "box", "slab", "torus"]
+WATERTIGHT = ["sphere", "box", "slab", "torus", "teapot_closed"]
 
 
 def _front_facing_fraction(mesh: trimesh.Trimesh, n_rays: int = 4000, seed: int = 0) -> float:
@@ -89,6 +89,7 @@ def test_slab_centred_with_thickness_along_z():
         ("torus", {"major_sections": 2}, "major_sections"),
         ("teapot", {"size": -5.0}, "size"),
         ("teapot", {"resolution": 0}, "resolution"),
+        ("teapot_closed", {"grid": 8}, "grid"),
         ("sphere", {"radiuss": 1.0}, "radiuss"),
     ],
 )
@@ -142,6 +143,31 @@ def test_teapot_mesh_properties():
     # Rays from outside hit front faces; the ~1% exceptions pass through the gap between lid and rim (or into the
     # spout) and meet the inside of the body, which is correctly back-facing.
     assert _front_facing_fraction(mesh) > 0.97
+
+
+def test_closed_teapot_is_the_solid_the_patches_bound():
+    """The watertight teapot lies on the patch surface (within the grid spacing, except where the open surface has
+    no counterpart: the solid spout's mouth, the filled lid gap) and its volume converges with the grid."""
+    from jaxsss.render.teapot import closed_teapot_mesh
+
+    size = 60.0
+    mesh, coarse = closed_teapot_mesh(size, grid=160), closed_teapot_mesh(size, grid=96)
+    assert mesh.is_watertight and mesh.is_winding_consistent and mesh.volume > 0
+    assert len(mesh.split()) == 1  # one solid: spout, handle, lid and knob joined to the body
+    assert mesh.extents[2] == pytest.approx(size, abs=1.5 * size / 159)
+    open_surface = teapot_mesh(size=size, resolution=16)
+    np.testing.assert_allclose(mesh.extents[:2], open_surface.extents[:2], atol=1.5 * size / 159 * 2)
+    sample = mesh.vertices[np.random.default_rng(0).choice(len(mesh.vertices), 1500, replace=False)]
+    # Distance to the open surface: exact point-triangle distances to the 16 triangles with the nearest centres.
+    from scipy.spatial import cKDTree
+
+    _, near = cKDTree(open_surface.triangles_center).query(sample, k=16)
+    tris = open_surface.triangles[near.ravel()]
+    closest = trimesh.triangles.closest_point(tris, np.repeat(sample, 16, axis=0))
+    dist = np.linalg.norm(closest - np.repeat(sample, 16, axis=0), axis=1).reshape(-1, 16).min(axis=1)
+    h = mesh.extents.max() / 159
+    assert np.quantile(dist, 0.99) < h, np.quantile(dist, [0.5, 0.99, 1.0])
+    assert coarse.volume == pytest.approx(mesh.volume, rel=1e-2)
 
 
 def test_teapot_area_converges():
