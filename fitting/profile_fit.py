@@ -239,9 +239,10 @@ BLOCK_STEPS = 8
 
 @lru_cache(maxsize=16)
 def _compiled_block(cfg: K.Config):
-    def block(r, state, pidx, y, w, mask, eta, d):
+    def block(r, state, pidx, y, se, mask, eta, d):
         def one(st, i):
-            return K.lm_block(st, (r, y[i], w[i], mask[i], eta[i], d[i], cfg), cfg, BLOCK_STEPS)
+            w = K.weights(y[i], se[i], cfg)[0]
+            return K.lm_block(st, (r, y[i], w, mask[i], eta[i], d[i], cfg), cfg, BLOCK_STEPS)
 
         return jax.vmap(one)(state, pidx)
 
@@ -260,7 +261,13 @@ def _solve_slots(cfg, r, theta0, mask, y, se, eta, d):
     Q = P_ * S
     starts0 = np.asarray(theta0).reshape(Q, p)
     limits0 = np.tile(np.asarray(K.step_limits(S, cfg)), P_)
-    w = jax.vmap(lambda a, b: K.weights(a, b, cfg)[0])(y, se)
+    # The problems' data go to the device once, padded to a bucketed count (one compilation per bucket, not per
+    # batch size); each block gathers its slots' problems there.
+    pad = _bucket(P_) - P_
+    data = [np.asarray(a) for a in (y, se, mask, np.broadcast_to(eta, (P_,)), np.broadcast_to(d, (P_,)))]
+    if pad:
+        data = [np.concatenate([a, np.repeat(a[-1:], pad, axis=0)]) for a in data]
+    y, se, mask, eta, d = (jax.device_put(a) for a in data)
     n = min(_bucket(Q), SLOTS)
     slot_q = np.full(n, -1)
     theta = np.zeros((n, p))
@@ -292,7 +299,7 @@ def _solve_slots(cfg, r, theta0, mask, y, se, eta, d):
             n = m
         state = K.LMState(*(jnp.asarray(a) for a in (theta, lam, nu, steps, status, limit)))
         with trusted_traces():
-            state = _compiled_block(cfg)(r, state, jnp.asarray(np.maximum(slot_q, 0) // S), y, w, mask, eta, d)
+            state = _compiled_block(cfg)(r, state, jnp.asarray(np.maximum(slot_q, 0) // S), y, se, mask, eta, d)
         theta, lam, nu, steps, status, limit = (np.array(x) for x in state)
         done = (status != K._RUNNING) & (slot_q >= 0)
         if np.any(done):
