@@ -1,5 +1,7 @@
 """The dipole's hand-written Jacobian (fitting._dipole_jac) against jax.jacfwd of the registered model."""
 
+import functools
+
 import jax
 import jax.numpy as jnp
 import numpy as np
@@ -13,6 +15,21 @@ from fitting.models import model_profiles, resolve_model
 R = np.concatenate([[0.0], np.geomspace(1e-3, 50.0, 40)])
 
 
+@functools.lru_cache
+def both(fresnel):
+    """Jitted (eager op-by-op is slow): the hand-written value and Jacobian, and the model with jacfwd's."""
+
+    def model(th, eta):
+        return model_profiles(resolve_model("dipole"), jnp.asarray(R), jnp.exp(th[0]), jnp.exp(th[1]), eta, 1.0,
+                              None, fresnel=fresnel)["R"]
+
+    def run(th, eta):
+        v, dla, dls = dipole_value_and_jac(jnp.asarray(R), jnp.exp(th[0]), jnp.exp(th[1]), eta, fresnel)
+        return v, jnp.stack([dla, dls], 1), model(th, eta), jax.jacfwd(model)(th, eta)
+
+    return jax.jit(run)
+
+
 @pytest.mark.parametrize("sa, ss, eta, fresnel", [
     (0.032, 0.74, 1.3, "poly"),  # skin1 red
     (0.48, 1.01, 1.3, "exact"),  # skin1 blue
@@ -21,17 +38,11 @@ R = np.concatenate([[0.0], np.geomspace(1e-3, 50.0, 40)])
     (0.01, 1.0, 0.8, "exact"),  # eta < 1
 ])
 def test_value_and_jacobian_match_the_model_and_jacfwd(sa, ss, eta, fresnel):
-    def model(th):
-        return model_profiles(resolve_model("dipole"), jnp.asarray(R), jnp.exp(th[0]), jnp.exp(th[1]), eta, 1.0,
-                              None, fresnel=fresnel)["R"]
-
-    th = jnp.log(jnp.array([sa, ss]))
-    want_v, want_j = model(th), jax.jacfwd(model)(th)
-    v, dla, dls = dipole_value_and_jac(jnp.asarray(R), sa, ss, eta, fresnel)
+    v, J, want_v, want_j = both(fresnel)(jnp.log(jnp.array([sa, ss])), eta)
     # 1e-12: the same closed forms in a different order of float64 operations.
     np.testing.assert_allclose(v, want_v, rtol=1e-12, atol=0)
     scale = np.max(np.abs(want_j), axis=0)  # relative to each column's size (derivatives change sign)
-    np.testing.assert_allclose(np.stack([dla, dls], 1) / scale, want_j / scale, rtol=0, atol=1e-12)
+    np.testing.assert_allclose(J / scale, want_j / scale, rtol=0, atol=1e-12)
 
 
 @pytest.mark.parametrize("relative", [False, True])
@@ -47,8 +58,7 @@ def test_kernel_linearisation_matches_jacfwd_of_the_residuals(relative):
     args = (jnp.asarray(r), jnp.asarray(y), w, jnp.asarray(mask), 1.3, 1.0, cfg)
     theta = jnp.log(jnp.array([0.05, 1.2] + ([3.0] if relative else [])))
     assert K._hand_jacobian(cfg)
-    res, J = K._linearise(theta, args)
-    want_res = K.residuals(theta, args)
-    want_J = jax.jacfwd(lambda t: K.residuals(t, args))(theta)
+    res, J, want_res, want_J = jax.jit(lambda t: (*K._linearise(t, args), K.residuals(t, args),
+                                                  jax.jacfwd(lambda u: K.residuals(u, args))(t)))(theta)
     np.testing.assert_allclose(res, want_res, rtol=1e-12, atol=1e-14)
     np.testing.assert_allclose(J, want_J, rtol=1e-11, atol=1e-13)
