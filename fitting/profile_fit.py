@@ -327,6 +327,23 @@ def _unpack_data(r, R, R_stderr, T, T_stderr):
     return r, R, R_stderr, T, T_stderr
 
 
+STATIC_BUCKET = 4  # integer static settings (the multipole's pair count) are rounded up to powers of this ...
+STATIC_MIN = 16  # ... and at least this
+
+
+def _static_bucket(n, cap):
+    """An integer static setting rounded up to a power of :data:`STATIC_BUCKET` (at least :data:`STATIC_MIN`),
+    capped at ``cap``. Each distinct value is a compilation of the solve and finish stages (tens of seconds for the
+    multipole on this machine; a sweep of 40 slabs took 730 s with a power of 2); more image pairs than needed only
+    add terms below the tolerance, so a coarse rounding costs at most 4x in evaluation and buys few compilations."""
+    if not isinstance(n, (int, np.integer)):
+        return n
+    b = STATIC_MIN
+    while b < n:
+        b *= STATIC_BUCKET
+    return int(min(b, cap)) if cap is not None else int(b)
+
+
 def _prepare_static(model, problem, sa, ss, eta, fresnel, notes):
     """The model's static setting for the given (concrete) parameters of every problem; if the model cannot settle
     one (e.g. the multipole's pair count for an almost non-absorbing slab), its ``static_cap`` with a note."""
@@ -405,7 +422,8 @@ def _fit(owner, batched, r, R, R_stderr, T, T_stderr, *, eta, model, thickness, 
         for attempt in range(3):
             if model.prepare is not None:
                 need = static_need(start)
-                cfg = cfg._replace(static=min(max(2 * need, cfg.static if attempt else 0), model.static_cap))
+                cfg = cfg._replace(static=_static_bucket(max(2 * need, cfg.static if attempt else 0),
+                                                         model.static_cap))
             thetas, results, steps, stationary = _solve(cfg, shard, pb.r, start, mask, y, se, eta_p, d)
             steps_total = steps_total + steps
             if model.prepare is None:
