@@ -224,6 +224,9 @@ def starts(r, y, se, eta, d, r_lo, r_hi, auto, cfg: Config):
     def range_mask(sa, ss, inside=in_range, radii=r_s):
         r_cut = jnp.where(auto, r_min_lu / (sa + ss), r_lo)
         m = inside & (radii >= r_cut)[None, :]
+        if model.r_max_ld is not None:  # no r_max given (inf): the model's own limit, r_max_ld l_d at the start
+            r_top = jnp.where(jnp.isinf(r_hi), model.r_max_ld / jnp.sqrt(3.0 * sa * (sa + ss)), r_hi)
+            m = m & (radii <= r_top)[None, :]
         fallback = jnp.sum(m) <= p
         return jnp.where(fallback, inside, m), r_cut, fallback
 

@@ -232,6 +232,7 @@ def _run(stage, cfg, shard, r, *per_problem):
 # Batches of more than FUSED_MAX problems (profiles x channels) run the LM loop in blocks of BLOCK_STEPS iterations
 # over at most SLOTS problems at a time; a converged problem leaves its slot and the next start takes it, so the
 # batch costs about its mean iteration count, not its largest (issue 18: 143 iterations against a mean of 18.5).
+R_MAX_SLACK = 1.25  # a fit's range may end this factor past the model's r_max_ld l_d at the solution, no more
 FUSED_MAX = 64
 SLOTS = 512
 BLOCK_STEPS = 8
@@ -454,7 +455,12 @@ def _fit(owner, batched, r, R, R_stderr, T, T_stderr, *, eta, model, thickness, 
                        "first bin's average over the source is not the model's point value")
     else:
         reason = f"user: r_min = {_mm(r_min)}"
-    reason += "; " + ("r_max = all radii" if r_max is None else f"r_max = {_mm(r_max)}")
+    if r_max is not None:
+        reason += f"; r_max = {_mm(r_max)}"
+    elif model.r_max_ld is not None:
+        reason += f"; r_max = {model.r_max_ld:g} l_d at the initial guess (the {model.name} model's validity)"
+    else:
+        reason += "; r_max = all radii"
     if not all(pb.has_stderr):
         reason += "; points with data <= 0 left out (relative weights)"
     corr = np.asarray(out["correlation"])
@@ -470,6 +476,18 @@ def _fit(owner, batched, r, R, R_stderr, T, T_stderr, *, eta, model, thickness, 
                 f"{int(outside.sum())} of {outside.size} fits left the {model.name} model's validity range "
                 f"sigma_a / sigma_s' >= {ratio_min:.3g} (first: fit {i}: {ratio[i]:.3g}); the table loses long paths "
                 "there and the solution is biased (sigma_a too low)")
+    if model.r_max_ld is not None:
+        # The range past the model's validity (a user's r_max, or a solution far from the start): say so.
+        sa_f, ss_f = np.asarray(out["sigma_a"]), np.asarray(out["sigma_s_prime"])
+        ld_f = 1.0 / np.sqrt(3.0 * sa_f * (sa_f + ss_f))
+        past = np.asarray(out["r_max"]) > R_MAX_SLACK * model.r_max_ld * ld_f
+        if np.any(past):
+            i = int(np.argmax(past))
+            model_warnings.append(
+                f"{int(past.sum())} of {past.size} fits used radii beyond the {model.name} model's validity "
+                f"r <= {model.r_max_ld:g} l_d (first: fit {i}: r_max = {float(np.asarray(out['r_max'])[i]):.3g} mm "
+                f"= {float(np.asarray(out['r_max'])[i] / ld_f[i]):.3g} l_d); the far field's table noise can make "
+                "local minima -- give a smaller r_max")
     u = pb.unflatten
     zeros = np.zeros(pb.B * pb.C)
     res = ProfileFit(
