@@ -203,7 +203,11 @@ def starts(r, y, se, eta, d, r_lo, r_hi, auto, cfg: Config):
 
     # The candidates are scored on at most SCORE_RADII radii spread evenly (in index) over [r_lo, r_hi]: ranking
     # needs no precision, and the candidates' predictions are most of a batch's cost (180 x N per problem).
-    idx, keep = score_radii(r, r_lo, r_hi)
+    # (A model with a range limit, r_max_ld l_d, and no r_max given: spread them up to that limit at the largest
+    # candidate l_d, not over every radius: the range may hold a few of them only.)
+    r_top = r_hi if model.r_max_ld is None else jnp.where(jnp.isinf(r_hi), model.r_max_ld * ld * max(LD_FACTORS),
+                                                          r_hi)
+    idx, keep = score_radii(r, r_lo, r_top)
     r_s = r[idx]
     y, w = y[:, idx], w_full[:, idx]
     in_range = in_range_full[:, idx] & keep[None, :]

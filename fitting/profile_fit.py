@@ -19,6 +19,7 @@ with ``data <= 0`` are then left out).
 
 from __future__ import annotations
 
+import os
 import time
 import warnings
 from functools import lru_cache
@@ -225,8 +226,92 @@ def _run(stage, cfg, shard, r, *per_problem):
         per_problem = jax.tree_util.tree_map(lambda x: jax.device_put(x, NamedSharding(mesh, P("batch"))),
                                              per_problem)
     with trusted_traces():  # inputs validated on the host: no host callbacks, so the persistent cache can store it
-        out = _compiled(stage, cfg)(r, *per_problem)
+        if stage == "fit" and mesh is None:
+            out = _exported_fit(cfg, r, per_problem)
+        else:
+            out = _compiled(stage, cfg)(r, *per_problem)
     return jax.tree_util.tree_map(lambda x: np.asarray(x)[:P_], out)  # drop the padding
+
+
+def _source_digest() -> str:
+    """A digest of the code a fit traces (jaxsss, fitting) and of the JAX version: an exported fit is reused only by
+    the code that made it."""
+    import hashlib
+    from pathlib import Path
+
+    h = hashlib.sha256(jax.__version__.encode())
+    for pkg in (Path(jaxsss.__file__).parent, Path(__file__).parent):
+        for f in sorted(pkg.rglob("*.py")):
+            h.update(f.read_bytes())
+    return h.hexdigest()[:16]
+
+
+@lru_cache(maxsize=None)
+def _export_dir():
+    from jaxsss._config import compilation_cache_dir
+
+    d = compilation_cache_dir()
+    if d is None:
+        return None
+    d = d / "exported" / _source_digest()
+    try:
+        d.mkdir(parents=True, exist_ok=True)
+    except OSError:
+        return None
+    return d
+
+
+_EXPORTED = {}
+
+
+def _exported_fit(cfg, r, per_problem):
+    """The fused fit through :mod:`jax.export`: the traced and lowered program is serialised next to the compilation
+    cache (keyed by the configuration, the shapes and :func:`_source_digest`), so that a new process skips tracing
+    and lowering (~1 s of a warm first fit on this machine) and the compilation cache serves the rest. The status
+    leaves as its integer code (the exported output holds plain arrays) and becomes an ``optimistix.RESULTS`` again
+    here. Without a cache directory, the jitted function as before."""
+    import hashlib
+    import importlib.util
+
+    import optimistix as optx
+
+    directory = _export_dir()
+    if directory is None or importlib.util.find_spec("flatbuffers") is None:  # jax.export serialises with it
+        return _compiled("fit", cfg)(r, *per_problem)
+    shapes = [(np.shape(x), str(np.asarray(x).dtype)) for x in (r, *per_problem)]
+    key = hashlib.sha256(repr((cfg, shapes)).encode()).hexdigest()[:24]
+    exp = _EXPORTED.get(key)
+    if exp is False:
+        return _compiled("fit", cfg)(r, *per_problem)
+    if exp is None:
+        path = directory / f"fit-{key}.bin"
+        if path.exists():
+            try:
+                exp = jax.export.deserialize(bytearray(path.read_bytes()))
+            except Exception:  # a damaged or foreign file: export again
+                exp = None
+        if exp is None:
+            fn = _compiled("fit", cfg)
+
+            def plain(r, *a):
+                out, *rest = fn(r, *a)
+                return ({**out, "result": out["result"]._value}, *rest)
+
+            try:
+                exp = jax.export.export(jax.jit(plain))(r, *per_problem)
+            except ValueError:  # e.g. a solver whose custom calls have no compatibility guarantee: not exportable
+                _EXPORTED[key] = False
+                return _compiled("fit", cfg)(r, *per_problem)
+            try:
+                tmp = path.with_suffix(f".{os.getpid()}.tmp")
+                tmp.write_bytes(exp.serialize())
+                tmp.replace(path)
+            except OSError:
+                pass
+        _EXPORTED[key] = exp
+    out, *rest = exp.call(r, *per_problem)
+    out = {**out, "result": optx.RESULTS.successful.__class__(out["result"], optx.RESULTS)}
+    return (out, *rest)
 
 
 # Batches of more than FUSED_MAX problems (profiles x channels) run the LM loop in blocks of BLOCK_STEPS iterations
