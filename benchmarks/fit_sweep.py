@@ -141,11 +141,17 @@ def run(models, n, seed=0, progress=None):
 
 
 def main(argv=None) -> int:
-    args = parse_args(argv, __doc__.splitlines()[0])
+    import argparse
+
+    extra = argparse.ArgumentParser(add_help=False)
+    extra.add_argument("--models", default=None, help="comma-separated model names (default: every registered one)")
+    extra.add_argument("--n", type=int, default=None, help="profiles per model (default 40 with --quick, else 1000)")
+    own, rest = extra.parse_known_args(argv)
+    args = parse_args(rest, __doc__.splitlines()[0])
     import fitting
 
-    n = 40 if args.quick else 1000
-    models = tuple(fitting.FORWARD_MODELS)
+    n = own.n or (40 if args.quick else 1000)
+    models = tuple(own.models.split(",")) if own.models else tuple(fitting.FORWARD_MODELS)
     # Compile every model's configurations outside the timing (one small sweep first).
     run(models, 2, seed=99)
     stats = run(models, n, seed=1, progress=None if args.quick else 100)

@@ -22,22 +22,45 @@ The Rd -> alpha' inversion and the (Rd, l_d) reparameterisation are closed-form 
 """
 
 import jaxsss  # noqa: F401  (float64 before anything else)
-from fitting.image_fit import ImageFit, fit_image
-from fitting.io import COLUMNS, ProfileData, ProfileFileError, load_profile_npy, read_profile, read_profile_csv
-from fitting.mco import McoLayer, McoRun, read_mco
-from fitting.mco_fit import MCO_MODELS, McoFit, fit_mc_slab, fit_mco
-from fitting.models import FORWARD_MODELS, ForwardModel, entry_transmittance, register_model, resolve_model
-from fitting.replay_fit import ReplayData, ReplayFit, fit_replay, fit_slab_totals
-from fitting.profile_fit import FitWarning, fit_jacobian_wrt_data, fit_profile, fit_profiles
-from fitting.result import (
-    CONDITION_LIMIT,
-    CORRELATION_LIMIT,
-    SUSPECT_CHI2,
-    SUSPECT_STRUCTURE,
-    SUSPECT_TIE,
-    ProfileFit,
-)
-from fitting.solvers import SOLVERS, LeastSquaresSolver, resolve_solver
+
+# The public names are imported on first use (PEP 562, as in jaxsss/__init__): `jaxsss fit PROFILE.csv` needs the
+# profile fits only, not the image, replay and Monte Carlo fits (~1 s of imports on this machine).
+_LAZY = {
+    "ImageFit": "fitting.image_fit", "fit_image": "fitting.image_fit",
+    "COLUMNS": "fitting.io", "ProfileData": "fitting.io", "ProfileFileError": "fitting.io",
+    "load_profile_npy": "fitting.io", "read_profile": "fitting.io", "read_profile_csv": "fitting.io",
+    "McoLayer": "fitting.mco", "McoRun": "fitting.mco", "read_mco": "fitting.mco",
+    "MCO_MODELS": "fitting.mco_fit", "McoFit": "fitting.mco_fit", "fit_mco": "fitting.mco_fit",
+    "fit_mc_slab": "fitting.mco_fit",
+    "FORWARD_MODELS": "fitting.models", "ForwardModel": "fitting.models", "entry_transmittance": "fitting.models",
+    "register_model": "fitting.models", "resolve_model": "fitting.models",
+    "ReplayData": "fitting.replay_fit", "ReplayFit": "fitting.replay_fit", "fit_replay": "fitting.replay_fit",
+    "fit_slab_totals": "fitting.replay_fit",
+    "FitWarning": "fitting.profile_fit", "fit_jacobian_wrt_data": "fitting.profile_fit",
+    "fit_profile": "fitting.profile_fit", "fit_profiles": "fitting.profile_fit",
+    "CONDITION_LIMIT": "fitting.result", "CORRELATION_LIMIT": "fitting.result", "SUSPECT_CHI2": "fitting.result",
+    "SUSPECT_STRUCTURE": "fitting.result", "SUSPECT_TIE": "fitting.result", "ProfileFit": "fitting.result",
+    "SOLVERS": "fitting.solvers", "LeastSquaresSolver": "fitting.solvers", "resolve_solver": "fitting.solvers",
+}
+
+
+def __getattr__(name: str):
+    import importlib
+    import importlib.util
+
+    if name in _LAZY:
+        value = getattr(importlib.import_module(_LAZY[name]), name)
+    elif not name.startswith("_") and importlib.util.find_spec(f"fitting.{name}") is not None:
+        value = importlib.import_module(f"fitting.{name}")  # a submodule, e.g. fitting.models
+    else:
+        raise AttributeError(f"module 'fitting' has no attribute {name!r}")
+    globals()[name] = value
+    return value
+
+
+def __dir__():
+    return sorted(set(globals()) | set(_LAZY))
+
 
 __all__ = [
     "MCO_MODELS",

@@ -34,6 +34,7 @@ import jax
 import jax.numpy as jnp
 import optimistix as optx
 
+from fitting._dipole_jac import dipole_value_and_jac
 from fitting.result import CHI2_SIGMAS
 from fitting.models import entry_transmittance, model_profiles, resolve_model
 from fitting.solvers import resolve_solver
@@ -44,6 +45,7 @@ from fitting.solvers import resolve_solver
 ONE_MINUS_ALBEDO = tuple(1.0 - 1e-4 * 2.0**k for k in range(13)) + tuple(0.5**k for k in range(2, 25))
 # Multiples of the data's l_d tried with every Rd: the far-field slope is biased on short or cut ranges.
 LD_FACTORS = (0.5, 0.7, 1.0, 1.4, 2.0)
+SCORE_RADII = 32  # the start candidates are scored on at most this many radii of the fit range (see score_radii)
 ALT_MAX_STEPS = 48  # iteration cap of the second and third starts (see step_limits)
 LOCAL_MIN_RATIO = 100.0  # the other starts: local minima of the candidates' score within this factor of the best
 LD_CLAMP = (1e-6, 1e6)  # mm
@@ -156,6 +158,23 @@ def data_guess(r, y, se, r_lo, r_hi, cfg: Config):
 
 
 # --- 2. Multi-start ------------------------------------------------------------------------------------------------
+def score_radii(r, r_lo, r_hi):
+    """``(idx, keep)``, each ``(M,)`` with ``M = min(N, SCORE_RADII)``: indices of radii spread evenly (in index)
+    from the first to the last radius in ``[r_lo, r_hi]``, and which of them are new (repeats, when the range holds
+    fewer than ``M`` radii, are left out)."""
+    n = r.shape[0]
+    m = min(n, SCORE_RADII)
+    inside = (r >= r_lo) & (r <= r_hi)
+    pos = jnp.arange(n)
+    first = jnp.min(jnp.where(inside, pos, n - 1))
+    last = jnp.max(jnp.where(inside, pos, 0))
+    last = jnp.maximum(last, first)
+    frac = jnp.arange(m, dtype=r.dtype) / max(m - 1, 1)
+    idx = first + jnp.round(frac * (last - first).astype(r.dtype)).astype(first.dtype)
+    keep = jnp.concatenate([jnp.ones((1,), bool), idx[1:] != idx[:-1]])
+    return idx, keep
+
+
 def candidates(ld):
     """``(sigma_a, sigma_s', 1 - alpha')`` of the start candidates, each ``(n_albedo * n_ld,)``: the reduced albedos
     of :data:`ONE_MINUS_ALBEDO` at :data:`LD_FACTORS` times ``l_d``, by the hierarchical paper's Eq. 16 (closed form,
@@ -175,15 +194,25 @@ def starts(r, y, se, eta, d, r_lo, r_hi, auto, cfg: Config):
     threshold ``r >= r_cut`` and the notes' flags ``(slope_failed, range_fallback, ratio_raised)``."""
     TRACES["starts"] += 1
     ld, slope_failed = data_guess(r, y, se, r_lo, r_hi, cfg)
-    w, usable = weights(y, se, cfg)
-    in_range = usable & ((r >= r_lo) & (r <= r_hi))[None, :]
+    w_full, usable_full = weights(y, se, cfg)
+    in_range_full = usable_full & ((r >= r_lo) & (r <= r_hi))[None, :]
     sa_c, ss_c, om_c = candidates(ld)
     p = cfg.n_params
     model = resolve_model(cfg.model)
     r_min_lu = model.r_min_lu  # the default range starts at r_min_lu * l_u (model-specific)
 
+    # The candidates are scored on at most SCORE_RADII radii spread evenly (in index) over [r_lo, r_hi]: ranking
+    # needs no precision, and the candidates' predictions are most of a batch's cost (180 x N per problem).
+    # (A model with a range limit, r_max_ld l_d, and no r_max given: spread them up to that limit at the largest
+    # candidate l_d, not over every radius: the range may hold a few of them only.)
+    r_top = r_hi if model.r_max_ld is None else jnp.where(jnp.isinf(r_hi), model.r_max_ld * ld * max(LD_FACTORS),
+                                                          r_hi)
+    idx, keep = score_radii(r, r_lo, r_top)
+    r_s = r[idx]
+    y, w = y[:, idx], w_full[:, idx]
+    in_range = in_range_full[:, idx] & keep[None, :]
     # Every candidate's prediction once (one batched model evaluation); both passes below score from it.
-    preds = jax.vmap(lambda a, b: predict(r, a, b, eta, d, cfg))(sa_c, ss_c)  # (n_candidates, K, N)
+    preds = jax.vmap(lambda a, b: predict(r_s, a, b, eta, d, cfg))(sa_c, ss_c)  # (n_candidates, K, M)
 
     def score(sa, pred, m):
         if cfg.relative:  # least-squares scale, profiled out
@@ -196,19 +225,23 @@ def starts(r, y, se, eta, d, r_lo, r_hi, auto, cfg: Config):
         s = jnp.where((n > p) & jnp.isfinite(s) & (scale > 0.0), s, jnp.inf)
         return s, scale
 
-    def range_mask(sa, ss):
+    def range_mask(sa, ss, inside=in_range, radii=r_s):
         r_cut = jnp.where(auto, r_min_lu / (sa + ss), r_lo)
-        m = in_range & (r >= r_cut)[None, :]
+        m = inside & (radii >= r_cut)[None, :]
+        if model.r_max_ld is not None:  # no r_max given (inf): the model's own limit, r_max_ld l_d at the start
+            r_top = jnp.where(jnp.isinf(r_hi), model.r_max_ld / jnp.sqrt(3.0 * sa * (sa + ss)), r_hi)
+            m = m & (radii <= r_top)[None, :]
         fallback = jnp.sum(m) <= p
-        return jnp.where(fallback, in_range, m), r_cut, fallback
+        return jnp.where(fallback, inside, m), r_cut, fallback
 
     # The default range depends on the start: a first pass scores each candidate on its own range (mean squares, so
     # that ranges of different lengths compare), the best one fixes the range, and a second pass scores every
     # candidate on that one range (the starts and the final costs then compare).
     s0, _ = jax.vmap(lambda a, b, pr: score(a, pr, range_mask(a, b)[0]))(sa_c, ss_c, preds)
     first = jnp.argmin(s0)
-    mask, r_cut, fallback = range_mask(sa_c[first], ss_c[first])
-    scores, scales = jax.vmap(lambda a, pr: score(a, pr, mask))(sa_c, preds)
+    mask_s, _, _ = range_mask(sa_c[first], ss_c[first])
+    mask, r_cut, fallback = range_mask(sa_c[first], ss_c[first], in_range_full, r)  # the fit's range, all radii
+    scores, scales = jax.vmap(lambda a, pr: score(a, pr, mask_s))(sa_c, preds)
     best = jnp.argmin(scores)  # all inf -> 0, the data's own Rd
     # The other starts: the basins of the score over the (albedo, l_d) grid are its local minima (no neighbour of
     # the 8 lower); the ones of lowest and of highest albedo within a factor LOCAL_MIN_RATIO of the best score.
@@ -276,13 +309,48 @@ def step_limits(n_starts: int, cfg: Config):
     return jnp.asarray([cfg.max_steps] + [min(cfg.max_steps, ALT_MAX_STEPS)] * (n_starts - 1), jnp.int32)
 
 
+def _hand_jacobian(cfg: Config) -> bool:
+    """The dipole with fixed ``eta`` has a hand-written Jacobian (:mod:`fitting._dipole_jac`)."""
+    return cfg.model == "dipole" and not cfg.free_eta and cfg.outputs == ("R",)
+
+
 def _linearise(theta, args):
+    """``(residuals (K N,), J (K N, p))`` at ``theta``."""
+    cfg = args[-1]
+    if _hand_jacobian(cfg):
+        r, y, w, mask, eta, d, _ = args
+        bad = ~jnp.all(jnp.abs(theta) < 700.0)  # as in residuals()
+        sa, ss, scale, _ = unpack(jnp.where(bad, 0.0, theta), eta, cfg)
+        R, dla, dls = dipole_value_and_jac(r, sa, ss, eta, cfg.fresnel)
+        cols = [scale * dla, scale * dls] + ([scale * R] if cfg.relative else [])  # d/d log scale = scale R
+        J = jnp.where(mask[0][:, None], w[0][:, None] * jnp.stack(cols, axis=1), 0.0)
+        res = jnp.where(bad, jnp.nan, jnp.where(mask[0], w[0] * (scale * R - y[0]), 0.0))
+        return res, jnp.where(bad, 0.0, J)
+
     def res(th):  # the residuals once, as value and as auxiliary output (one trace of the model)
         v = residuals(th, args)
         return v, v
 
     J, rr = jax.jacfwd(res, has_aux=True)(theta)
     return rr, J
+
+
+def solve_small(A, b):
+    """``A^{-1} b`` for the LM's ``p x p`` normal equations: in closed form (the adjugate over the determinant) for
+    ``p`` = 2 and 3, where a batched LAPACK call per problem and iteration costs more than the arithmetic; else
+    :func:`jax.numpy.linalg.solve`. A singular ``A`` gives non-finite values (as the LU does), which the caller
+    rejects."""
+    p = A.shape[0]
+    if p == 2:
+        det = A[0, 0] * A[1, 1] - A[0, 1] * A[1, 0]
+        return jnp.stack([A[1, 1] * b[0] - A[0, 1] * b[1], A[0, 0] * b[1] - A[1, 0] * b[0]]) / det
+    if p == 3:
+        c0, c1, c2 = A[:, 0], A[:, 1], A[:, 2]
+        det = jnp.dot(c0, jnp.cross(c1, c2))
+        # Cramer's rule: x_i = det(A with column i replaced by b) / det(A)
+        return jnp.stack([jnp.dot(b, jnp.cross(c1, c2)), jnp.dot(c0, jnp.cross(b, c2)),
+                          jnp.dot(c0, jnp.cross(c1, b))]) / det
+    return jnp.linalg.solve(A, b)
 
 
 def lm_step(state: LMState, args, cfg: Config) -> LMState:
@@ -296,13 +364,13 @@ def lm_step(state: LMState, args, cfg: Config) -> LMState:
     eye = jnp.eye(p, dtype=theta.dtype)
     dg = jnp.maximum(jnp.diag(H), jnp.finfo(theta.dtype).tiny)
     # Gauss-Newton step (undamped): below the tolerance in every log-parameter -> stationary, stop.
-    gn = jnp.linalg.solve(H + 1e-300 * eye, -g)
+    gn = solve_small(H + 1e-300 * eye, -g)
     tol = cfg.atol + cfg.rtol * jnp.abs(theta)
     converged = jnp.all(jnp.isfinite(gn)) & jnp.all(jnp.abs(gn) <= tol)
     # Damped step (Marquardt's scaling diag(J^T J)), and the undamped one: whichever lowers the cost more is taken
     # (near the minimum that is the Gauss-Newton step, so the last steps converge quadratically and a stop by the
     # reduction test below leaves no damping error behind).
-    delta = jnp.linalg.solve(H + state.lam * jnp.diag(dg), -g)
+    delta = solve_small(H + state.lam * jnp.diag(dg), -g)
     # Both trials in one batched evaluation (one copy of the model in the compiled loop).
     ft, ft_gn = jax.vmap(lambda dl: jnp.sum(residuals(theta + dl, args) ** 2))(jnp.stack([delta, gn]))
     ft = jnp.where(jnp.isfinite(ft), ft, jnp.inf)

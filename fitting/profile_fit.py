@@ -19,6 +19,7 @@ with ``data <= 0`` are then left out).
 
 from __future__ import annotations
 
+import os
 import time
 import warnings
 from functools import lru_cache
@@ -225,13 +226,98 @@ def _run(stage, cfg, shard, r, *per_problem):
         per_problem = jax.tree_util.tree_map(lambda x: jax.device_put(x, NamedSharding(mesh, P("batch"))),
                                              per_problem)
     with trusted_traces():  # inputs validated on the host: no host callbacks, so the persistent cache can store it
-        out = _compiled(stage, cfg)(r, *per_problem)
+        if stage == "fit" and mesh is None:
+            out = _exported_fit(cfg, r, per_problem)
+        else:
+            out = _compiled(stage, cfg)(r, *per_problem)
     return jax.tree_util.tree_map(lambda x: np.asarray(x)[:P_], out)  # drop the padding
+
+
+def _source_digest() -> str:
+    """A digest of the code a fit traces (jaxsss, fitting) and of the JAX version: an exported fit is reused only by
+    the code that made it."""
+    import hashlib
+    from pathlib import Path
+
+    h = hashlib.sha256(jax.__version__.encode())
+    for pkg in (Path(jaxsss.__file__).parent, Path(__file__).parent):
+        for f in sorted(pkg.rglob("*.py")):
+            h.update(f.read_bytes())
+    return h.hexdigest()[:16]
+
+
+@lru_cache(maxsize=None)
+def _export_dir():
+    from jaxsss._config import compilation_cache_dir
+
+    d = compilation_cache_dir()
+    if d is None:
+        return None
+    d = d / "exported" / _source_digest()
+    try:
+        d.mkdir(parents=True, exist_ok=True)
+    except OSError:
+        return None
+    return d
+
+
+_EXPORTED = {}
+
+
+def _exported_fit(cfg, r, per_problem):
+    """The fused fit through :mod:`jax.export`: the traced and lowered program is serialised next to the compilation
+    cache (keyed by the configuration, the shapes and :func:`_source_digest`), so that a new process skips tracing
+    and lowering (~1 s of a warm first fit on this machine) and the compilation cache serves the rest. The status
+    leaves as its integer code (the exported output holds plain arrays) and becomes an ``optimistix.RESULTS`` again
+    here. Without a cache directory, the jitted function as before."""
+    import hashlib
+    import importlib.util
+
+    import optimistix as optx
+
+    directory = _export_dir()
+    if directory is None or importlib.util.find_spec("flatbuffers") is None:  # jax.export serialises with it
+        return _compiled("fit", cfg)(r, *per_problem)
+    shapes = [(np.shape(x), str(np.asarray(x).dtype)) for x in (r, *per_problem)]
+    key = hashlib.sha256(repr((cfg, shapes)).encode()).hexdigest()[:24]
+    exp = _EXPORTED.get(key)
+    if exp is False:
+        return _compiled("fit", cfg)(r, *per_problem)
+    if exp is None:
+        path = directory / f"fit-{key}.bin"
+        if path.exists():
+            try:
+                exp = jax.export.deserialize(bytearray(path.read_bytes()))
+            except Exception:  # a damaged or foreign file: export again
+                exp = None
+        if exp is None:
+            fn = _compiled("fit", cfg)
+
+            def plain(r, *a):
+                out, *rest = fn(r, *a)
+                return ({**out, "result": out["result"]._value}, *rest)
+
+            try:
+                exp = jax.export.export(jax.jit(plain))(r, *per_problem)
+            except ValueError:  # e.g. a solver whose custom calls have no compatibility guarantee: not exportable
+                _EXPORTED[key] = False
+                return _compiled("fit", cfg)(r, *per_problem)
+            try:
+                tmp = path.with_suffix(f".{os.getpid()}.tmp")
+                tmp.write_bytes(exp.serialize())
+                tmp.replace(path)
+            except OSError:
+                pass
+        _EXPORTED[key] = exp
+    out, *rest = exp.call(r, *per_problem)
+    out = {**out, "result": optx.RESULTS.successful.__class__(out["result"], optx.RESULTS)}
+    return (out, *rest)
 
 
 # Batches of more than FUSED_MAX problems (profiles x channels) run the LM loop in blocks of BLOCK_STEPS iterations
 # over at most SLOTS problems at a time; a converged problem leaves its slot and the next start takes it, so the
 # batch costs about its mean iteration count, not its largest (issue 18: 143 iterations against a mean of 18.5).
+R_MAX_SLACK = 1.25  # a fit's range may end this factor past the model's r_max_ld l_d at the solution, no more
 FUSED_MAX = 64
 SLOTS = 512
 BLOCK_STEPS = 8
@@ -239,9 +325,10 @@ BLOCK_STEPS = 8
 
 @lru_cache(maxsize=16)
 def _compiled_block(cfg: K.Config):
-    def block(r, state, pidx, y, w, mask, eta, d):
+    def block(r, state, pidx, y, se, mask, eta, d):
         def one(st, i):
-            return K.lm_block(st, (r, y[i], w[i], mask[i], eta[i], d[i], cfg), cfg, BLOCK_STEPS)
+            w = K.weights(y[i], se[i], cfg)[0]
+            return K.lm_block(st, (r, y[i], w, mask[i], eta[i], d[i], cfg), cfg, BLOCK_STEPS)
 
         return jax.vmap(one)(state, pidx)
 
@@ -260,7 +347,13 @@ def _solve_slots(cfg, r, theta0, mask, y, se, eta, d):
     Q = P_ * S
     starts0 = np.asarray(theta0).reshape(Q, p)
     limits0 = np.tile(np.asarray(K.step_limits(S, cfg)), P_)
-    w = jax.vmap(lambda a, b: K.weights(a, b, cfg)[0])(y, se)
+    # The problems' data go to the device once, padded to a bucketed count (one compilation per bucket, not per
+    # batch size); each block gathers its slots' problems there.
+    pad = _bucket(P_) - P_
+    data = [np.asarray(a) for a in (y, se, mask, np.broadcast_to(eta, (P_,)), np.broadcast_to(d, (P_,)))]
+    if pad:
+        data = [np.concatenate([a, np.repeat(a[-1:], pad, axis=0)]) for a in data]
+    y, se, mask, eta, d = (jax.device_put(a) for a in data)
     n = min(_bucket(Q), SLOTS)
     slot_q = np.full(n, -1)
     theta = np.zeros((n, p))
@@ -292,7 +385,7 @@ def _solve_slots(cfg, r, theta0, mask, y, se, eta, d):
             n = m
         state = K.LMState(*(jnp.asarray(a) for a in (theta, lam, nu, steps, status, limit)))
         with trusted_traces():
-            state = _compiled_block(cfg)(r, state, jnp.asarray(np.maximum(slot_q, 0) // S), y, w, mask, eta, d)
+            state = _compiled_block(cfg)(r, state, jnp.asarray(np.maximum(slot_q, 0) // S), y, se, mask, eta, d)
         theta, lam, nu, steps, status, limit = (np.array(x) for x in state)
         done = (status != K._RUNNING) & (slot_q >= 0)
         if np.any(done):
@@ -318,6 +411,23 @@ def _unpack_data(r, R, R_stderr, T, T_stderr):
             raise ValueError("fit_profile(ProfileData, ...): do not also pass R/T arrays")
         return r.r, r.R, r.R_stderr, r.T, r.T_stderr
     return r, R, R_stderr, T, T_stderr
+
+
+STATIC_BUCKET = 4  # integer static settings (the multipole's pair count) are rounded up to powers of this ...
+STATIC_MIN = 16  # ... and at least this
+
+
+def _static_bucket(n, cap):
+    """An integer static setting rounded up to a power of :data:`STATIC_BUCKET` (at least :data:`STATIC_MIN`),
+    capped at ``cap``. Each distinct value is a compilation of the solve and finish stages (tens of seconds for the
+    multipole on this machine; a sweep of 40 slabs took 730 s with a power of 2); more image pairs than needed only
+    add terms below the tolerance, so a coarse rounding costs at most 4x in evaluation and buys few compilations."""
+    if not isinstance(n, (int, np.integer)):
+        return n
+    b = STATIC_MIN
+    while b < n:
+        b *= STATIC_BUCKET
+    return int(min(b, cap)) if cap is not None else int(b)
 
 
 def _prepare_static(model, problem, sa, ss, eta, fresnel, notes):
@@ -398,7 +508,8 @@ def _fit(owner, batched, r, R, R_stderr, T, T_stderr, *, eta, model, thickness, 
         for attempt in range(3):
             if model.prepare is not None:
                 need = static_need(start)
-                cfg = cfg._replace(static=min(max(2 * need, cfg.static if attempt else 0), model.static_cap))
+                cfg = cfg._replace(static=_static_bucket(max(2 * need, cfg.static if attempt else 0),
+                                                         model.static_cap))
             thetas, results, steps, stationary = _solve(cfg, shard, pb.r, start, mask, y, se, eta_p, d)
             steps_total = steps_total + steps
             if model.prepare is None:
@@ -429,7 +540,12 @@ def _fit(owner, batched, r, R, R_stderr, T, T_stderr, *, eta, model, thickness, 
                        "first bin's average over the source is not the model's point value")
     else:
         reason = f"user: r_min = {_mm(r_min)}"
-    reason += "; " + ("r_max = all radii" if r_max is None else f"r_max = {_mm(r_max)}")
+    if r_max is not None:
+        reason += f"; r_max = {_mm(r_max)}"
+    elif model.r_max_ld is not None:
+        reason += f"; r_max = {model.r_max_ld:g} l_d at the initial guess (the {model.name} model's validity)"
+    else:
+        reason += "; r_max = all radii"
     if not all(pb.has_stderr):
         reason += "; points with data <= 0 left out (relative weights)"
     corr = np.asarray(out["correlation"])
@@ -445,6 +561,18 @@ def _fit(owner, batched, r, R, R_stderr, T, T_stderr, *, eta, model, thickness, 
                 f"{int(outside.sum())} of {outside.size} fits left the {model.name} model's validity range "
                 f"sigma_a / sigma_s' >= {ratio_min:.3g} (first: fit {i}: {ratio[i]:.3g}); the table loses long paths "
                 "there and the solution is biased (sigma_a too low)")
+    if model.r_max_ld is not None:
+        # The range past the model's validity (a user's r_max, or a solution far from the start): say so.
+        sa_f, ss_f = np.asarray(out["sigma_a"]), np.asarray(out["sigma_s_prime"])
+        ld_f = 1.0 / np.sqrt(3.0 * sa_f * (sa_f + ss_f))
+        past = np.asarray(out["r_max"]) > R_MAX_SLACK * model.r_max_ld * ld_f
+        if np.any(past):
+            i = int(np.argmax(past))
+            model_warnings.append(
+                f"{int(past.sum())} of {past.size} fits used radii beyond the {model.name} model's validity "
+                f"r <= {model.r_max_ld:g} l_d (first: fit {i}: r_max = {float(np.asarray(out['r_max'])[i]):.3g} mm "
+                f"= {float(np.asarray(out['r_max'])[i] / ld_f[i]):.3g} l_d); the far field's table noise can make "
+                "local minima -- give a smaller r_max")
     u = pb.unflatten
     zeros = np.zeros(pb.B * pb.C)
     res = ProfileFit(

@@ -1,6 +1,7 @@
 """Process-wide JAX settings: float64 by default and a persistent compilation cache.
 
-Precision (DESIGN.md, "Precision"): importing :mod:`jaxsss` enables ``jax_enable_x64``. Float32 still works: pass
+Precision (DESIGN.md, "Precision"): importing :mod:`jaxsss` enables ``jax_enable_x64`` (at once if JAX is already
+imported, else right after JAX's first import: :class:`_ConfigureOnImport`). Float32 still works: pass
 float32 arrays explicitly; the documented float32 error bounds are in ``docs/architecture.md`` and checked by
 ``tests/test_stability.py``.
 
@@ -14,12 +15,11 @@ default in ``$XDG_CACHE_HOME/jaxsss/jax`` (``~/.cache/jaxsss/jax``). The environ
 
 from __future__ import annotations
 
+import importlib.abc
+import importlib.util
 import os
+import sys
 from pathlib import Path
-
-import jax
-
-jax.config.update("jax_enable_x64", True)
 
 CACHE_ENV = "JAXSSS_COMPILATION_CACHE"
 """Environment variable: a directory for the compilation cache, or 0/off/false/no to disable it."""
@@ -44,6 +44,8 @@ def enable_compilation_cache(path: str | os.PathLike | None = None) -> Path | No
     Returns the directory in use, or None when the cache is off (``JAXSSS_COMPILATION_CACHE=0``) or the directory
     cannot be created (a read-only home, say: the cache is an optimisation, never a reason to fail).
     """
+    import jax
+
     if jax.config.jax_compilation_cache_dir and path is None:  # the user configured JAX directly
         return Path(jax.config.jax_compilation_cache_dir)
     directory = Path(path) if path is not None else compilation_cache_dir()
@@ -59,4 +61,34 @@ def enable_compilation_cache(path: str | os.PathLike | None = None) -> Path | No
     return directory
 
 
-enable_compilation_cache()
+def _configure_jax(jax) -> None:
+    jax.config.update("jax_enable_x64", True)
+    enable_compilation_cache()
+
+
+class _ConfigureOnImport(importlib.abc.MetaPathFinder):
+    """Configures JAX right after its first import (float64, the cache), so that importing :mod:`jaxsss` does not
+    import JAX itself: a command that needs no JAX (``jaxsss reparam`` of one value, ``--help``) starts in a
+    fraction of a second (issue 18). Every jaxsss module that uses JAX imports it, which runs this first."""
+
+    def find_spec(self, name, path=None, target=None):
+        if name != "jax":
+            return None
+        sys.meta_path.remove(self)
+        spec = importlib.util.find_spec("jax")
+        if spec is None or spec.loader is None:
+            return spec
+        run = spec.loader.exec_module
+
+        def exec_module(module):
+            run(module)
+            _configure_jax(module)
+
+        spec.loader.exec_module = exec_module
+        return spec
+
+
+if "jax" in sys.modules:  # imported before jaxsss
+    _configure_jax(sys.modules["jax"])
+elif not any(isinstance(f, _ConfigureOnImport) for f in sys.meta_path):
+    sys.meta_path.insert(0, _ConfigureOnImport())

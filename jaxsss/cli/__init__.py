@@ -25,7 +25,9 @@ COMMANDS = (reparam, profile, mc, fit, render, export, run)
 """Subcommand modules; each provides ``add_parser(subparsers)`` which sets ``run(args) -> int`` as a default."""
 
 
-def build_parser() -> Parser:
+def build_parser(only: str | None = None) -> Parser:
+    """The command line's parser; ``only``: build that subcommand's parser alone (the others' ``add_parser`` may
+    import the library to list its registries, which a process running another command need not pay for)."""
     parser = Parser(
         prog=PROG,
         description="jaxsss: differentiable diffusion models of translucent materials.",
@@ -36,7 +38,8 @@ def build_parser() -> Parser:
     parser.add_argument("--version", action="version", version=f"{PROG} {__version__}")
     subparsers = parser.add_subparsers(dest="command", metavar="COMMAND", required=True)
     for command in COMMANDS:
-        command.add_parser(subparsers)
+        if only is None or command.NAME == only:
+            command.add_parser(subparsers)
     return parser
 
 
@@ -45,9 +48,13 @@ def main(argv=None) -> int:
 
     ``--help`` and ``--version`` exit through ``SystemExit(0)`` as usual with argparse.
     """
-    parser = build_parser()
+    argv = sys.argv[1:] if argv is None else list(argv)
+    # A known subcommand first: build its parser alone (start-up, issue 18); anything else gets the full parser
+    # (top-level --help, unknown commands listed with the valid ones).
+    only = argv[0] if argv and argv[0] in {c.NAME for c in COMMANDS} else None
+    parser = build_parser(only)
     try:
-        args = parser.parse_args(sys.argv[1:] if argv is None else list(argv))
+        args = parser.parse_args(argv)
         return int(args.run(args) or 0)
     # User errors: ours, argparse's (via Parser.error), and the library's boundary validation.
     except (CLIError, ValueError, TypeError) as err:

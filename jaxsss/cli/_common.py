@@ -60,12 +60,15 @@ def number(text: str) -> float:
     return value
 
 
-def add_fresnel_option(parser: argparse.ArgumentParser) -> None:
-    from jaxsss.fresnel import F_DR_METHODS
+FRESNEL_METHODS = ("poly", "exact")
+"""The names of :data:`jaxsss.fresnel.F_DR_METHODS` (a test checks they agree): building the parser then needs no
+JAX import (issue 18: start-up)."""
 
+
+def add_fresnel_option(parser: argparse.ArgumentParser) -> None:
     parser.add_argument(
         "--fresnel",
-        choices=list(F_DR_METHODS),
+        choices=list(FRESNEL_METHODS),
         default="poly",
         help="diffuse Fresnel reflectance F_dr(eta): 'poly' (Groenhuis/Egan-Hilgeman fits, as in the papers; "
         "default) or 'exact' (quadrature of the Fresnel equations)",

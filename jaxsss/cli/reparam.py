@@ -86,19 +86,23 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
 
 
 def _forward(args) -> tuple[dict[str, np.ndarray], str]:
-    from jaxsss.reparam import from_rd_ld
-
     if args.rd is None or args.ld is None:
         raise CLIError("the forward conversion needs both --rd and --ld")
     if args.eta is None:
         raise CLIError("--eta is required (n_inside / n_outside)")
     n, ch = broadcast_channels(rd=args.rd, ld=args.ld)
+    if args.fresnel == "poly":
+        # The NumPy path (jaxsss.reparam_np, checked against the library to 1e-12): no JAX import, no compilation.
+        from jaxsss.reparam_np import from_rd_ld as from_rd_ld_np
+
+        out = from_rd_ld_np(ch["rd"], ch["ld"], args.eta, args.g)
+        _check_converged(out.pop("converged"), n, ch)
+        values = {k: np.broadcast_to(out[k], (n,)) for k, _, _ in QUANTITIES if k in out}  # _finish's order
+        return values, f"forward: Rd, l_d -> coefficients (eta = {args.eta:g}, F_dr {args.fresnel})"
+    from jaxsss.reparam import from_rd_ld
+
     rep = from_rd_ld(ch["rd"], ch["ld"], args.eta, args.g, fresnel=args.fresnel)
-    converged = np.asarray(rep.converged)
-    if not np.all(converged):
-        labels = channel_labels(n)
-        bad = ", ".join(f"{labels[i]} (rd={ch['rd'][i]:g})" for i in np.flatnonzero(~converged))
-        raise CLIError(f"the Rd inversion did not converge for channel(s) {bad}")
+    _check_converged(np.asarray(rep.converged), n, ch)
     m = rep.medium
     out = {
         "sigma_a": m.sigma_a,
@@ -108,6 +112,14 @@ def _forward(args) -> tuple[dict[str, np.ndarray], str]:
         "ld": rep.ld,
     }
     return _finish(out, m, n), f"forward: Rd, l_d -> coefficients (eta = {args.eta:g}, F_dr {args.fresnel})"
+
+
+def _check_converged(converged, n, ch) -> None:
+    converged = np.broadcast_to(converged, (n,))
+    if not np.all(converged):
+        labels = channel_labels(n)
+        bad = ", ".join(f"{labels[i]} (rd={ch['rd'][i]:g})" for i in np.flatnonzero(~converged))
+        raise CLIError(f"the Rd inversion did not converge for channel(s) {bad}")
 
 
 def _reverse(args) -> tuple[dict[str, np.ndarray], str]:

@@ -137,3 +137,17 @@ def test_slab_mc_user_errors_exit_2_with_one_line(capsys, tmp_path, args, match)
     assert code == 2 and out == ""
     lines = err.strip().splitlines()
     assert len(lines) == 1 and lines[0].startswith("jaxsss: error:") and match in lines[0], err
+
+
+def test_profile_fit_imports_leave_out_monte_carlo_and_image_fits():
+    """Start-up (issue 18): `jaxsss fit PROFILE.csv` needs the profile fits only; ``fitting`` imports its public names
+    lazily, so the Monte Carlo engine, the renderer and the image/replay fits stay unimported."""
+    import subprocess
+    import sys
+
+    code = ("import sys, fitting; fitting.fit_profile, fitting.read_profile, fitting.FORWARD_MODELS; "
+            "print(sorted(m for m in ('jaxsss.mc', 'jaxsss.render', 'fitting.image_fit', 'fitting.replay_fit', "
+            "'fitting.mco_fit') if m in sys.modules))")
+    proc = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120)
+    assert proc.returncode == 0, proc.stderr
+    assert proc.stdout.strip() == "[]"

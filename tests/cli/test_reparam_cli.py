@@ -165,8 +165,12 @@ def test_narasimhan_material_with_eta(capsys):
     assert all(0 < x < 1 for x in got["rd"])
 
 
-def test_non_converged_inversion_is_an_error_line(capsys, monkeypatch):
+@pytest.mark.parametrize("fresnel", ["poly", "exact"])  # the NumPy path (jaxsss.reparam_np) and the library's
+def test_non_converged_inversion_is_an_error_line(capsys, monkeypatch, fresnel):
+    import jaxsss.reparam_np
+
     real = jaxsss.reparam.from_rd_ld
+    real_np = jaxsss.reparam_np.from_rd_ld
 
     def failing(*args, **kwargs):
         rep = real(*args, **kwargs)
@@ -175,8 +179,15 @@ def test_non_converged_inversion_is_an_error_line(capsys, monkeypatch):
         failed = cap(jnp.array([False, True, False]), rep.result)
         return eqx.tree_at(lambda r: r.result, rep, failed)
 
+    def failing_np(*args, **kwargs):
+        out = real_np(*args, **kwargs)
+        out["converged"] = out["converged"] & np.array([True, False, True])
+        return out
+
     monkeypatch.setattr(jaxsss.reparam, "from_rd_ld", failing)
-    code, out, err = run_cli(capsys, "reparam", "--rd", 0.5, 0.6, 0.7, "--ld", 1, "--eta", 1.3, "--json")
+    monkeypatch.setattr(jaxsss.reparam_np, "from_rd_ld", failing_np)
+    code, out, err = run_cli(capsys, "reparam", "--rd", 0.5, 0.6, 0.7, "--ld", 1, "--eta", 1.3, "--json",
+                             "--fresnel", fresnel)
     assert code == 2 and out == ""
     assert err.startswith("jaxsss: error:") and "did not converge" in err and err.count("\n") == 1
     assert "G (rd=0.6)" in err and "R (" not in err
