@@ -222,6 +222,8 @@ def mcml_rows(fam, limit) -> list[dict]:
 
 
 def plot(rows, path: Path) -> None:
+    """Band medians per case (one colour per held-out case, dropped node or MCML file; one point per absorption),
+    with the reference's median relative stderr as error bars, and the +-2% acceptance band shaded."""
     import matplotlib
 
     matplotlib.use("Agg")
@@ -230,24 +232,30 @@ def plot(rows, path: Path) -> None:
     fig, axes = plt.subplots(1, 3, figsize=(16, 4.8))
     for ax, method in zip(axes, ("offgrid", "leave-one-out", "mcml")):
         sel = [r for r in rows if r["method"] == method or (method == "offgrid" and r["method"] == "direct")]
+        groups = list(dict.fromkeys(r["setting"].split(", mu'")[0].split(":")[0] for r in sel))
+        colours = plt.cm.tab10.colors
         for i, r in enumerate(sel):
+            grp = r["setting"].split(", mu'")[0].split(":")[0]
+            k = groups.index(grp)
             xs = [BAND_NAMES.index(b) + 0.8 * (i / max(len(sel), 1) - 0.4) for b in r["bands"]]
             ys = [100 * s["median"] for s in r["bands"].values()]
             es = [100 * (s["noise"] or 0.0) for s in r["bands"].values()]
-            ax.errorbar(xs, ys, yerr=es, fmt="o" if r["method"] != "direct" else "s", ms=3, lw=0.8,
-                        label=r["setting"] if len(sel) <= 12 else None)
+            first = all(q["setting"].split(", mu'")[0].split(":")[0] != grp for q in sel[:i])
+            ax.errorbar(xs, ys, yerr=es, fmt="s" if r["method"] == "direct" else "o", ms=3, lw=0.6,
+                        color=colours[k % 10], label=grp if first else None)
         ax.axhspan(-2, 2, color="0.9", zorder=0)
         ax.axhline(0, color="k", lw=0.5)
         ax.set_xticks(range(len(BAND_NAMES)), BAND_NAMES, fontsize=8)
         ax.set_ylabel("band median of family / reference - 1 (%)")
-        ax.set_title({"offgrid": "off-grid (n, g): held-out white runs, direct run",
-                      "leave-one-out": "a node predicted without it (grid spacing x2)",
-                      "mcml": "MCML 1.2.2 half-spaces"}[method], fontsize=9)
+        ax.set_title({"offgrid": "off-grid (n, g): held-out white runs (o), an absorbing run (s)",
+                      "leave-one-out": "a node predicted without its g or n (spacing x2 there)",
+                      "mcml": "MCML 1.2.2 half-spaces at the files' coefficients"}[method], fontsize=9)
         ax.set_ylim(-10, 10)
-        if len(sel) <= 12:
-            ax.legend(fontsize=5)
-    fig.suptitle("White MC family: interpolation error by band (bars: median relative stderr of the reference)",
-                 fontsize=10)
+        if groups:
+            ax.legend(fontsize=5, ncol=2)
+    fig.suptitle("White MC family: band medians at mu' = sigma_a / sigma_s' in " + ", ".join(f"{m:g}" for m in
+                 sorted({r["mu_prime"] for r in rows if r["method"] != "mcml"})) + " (bars: median relative stderr "
+                 "of the reference per annulus)", fontsize=10)
     fig.tight_layout()
     fig.savefig(path, dpi=110)
     plt.close(fig)

@@ -448,6 +448,11 @@ def _node_log_profiles(mu, fam: WhiteFamily):
 def log_bin_profile(mu, g, n, fam: WhiteFamily):
     """``log`` of the family's annulus averages (before the radial spline) at ``mu' = sigma_a / sigma_s'``, in
     transport units: ``broadcast(mu, g, n).shape + (M,)``. The quantity the interpolation over nodes acts on."""
+    return _log_bin_profile(*(jnp.asarray(x, jnp.float64) for x in (mu, g, n)), fam)
+
+
+@eqx.filter_jit
+def _log_bin_profile(mu, g, n, fam: WhiteFamily):
     wg = _hermite_weights(jnp.asarray(g, jnp.float64), fam.g_nodes)  # (..., G)
     wn = _hermite_weights(jnp.asarray(n, jnp.float64), fam.n_nodes)  # (..., N)
     return _weighted_log_bins(jnp.asarray(mu, jnp.float64), wg, wn, fam)

@@ -78,11 +78,10 @@ def test_sigma_a_zero_finite_and_plane_integral(fam):
 
 def test_fixed_g_n_block_equals_the_whole_grid(fam):
     # Concrete (g, n) evaluates only the 4 x 4 block of nodes with non-zero weights; traced ones use every node.
-    r = jnp.array([0.0, 0.2, 2.0, 20.0])
+    r = jnp.array([0.05, 0.5, 5.0])
+    full = jax.jit(lambda g, n: wf.white_family_profile(r, 0.02, 1.5, g, n, fam))
     for g, n in [(0.72, 1.33), (0.0, 1.0), (0.95, 1.6), (0.1, 1.55)]:
-        block = wf.white_family_profile(r, 0.02, 1.3, g, n, fam)
-        full = jax.jit(lambda g, n: wf.white_family_profile(r, 0.02, 1.3, g, n, fam))(g, n)
-        np.testing.assert_allclose(block, full, rtol=1e-12)
+        np.testing.assert_allclose(wf.white_family_profile(r, 0.02, 1.5, g, n, fam), full(g, n), rtol=1e-12)
 
 
 def test_shapes_broadcast(fam):
@@ -120,3 +119,15 @@ def test_offgrid_reference(fam):
     for row in compare_node(fam, t, (0.01, 0.1), "offgrid", "test", 1.0):
         assert len(row["bands"]) == 4, row["bands"]
         assert row["error"] < 0.02, row
+
+
+def test_merge_nodes_pools_photons():
+    # Pooling two runs of one node: photon-weighted means, standard errors combined, costs added; other nodes refused.
+    a = wf.load_node(wf.FAMILY_DIR / wf.node_file(0.3, 1.3))
+    b = dict(a, photons=3 * int(a["photons"]), R=2 * a["R"], seconds=5.0, seed=1)
+    m = wf.merge_nodes(a, b)
+    np.testing.assert_allclose(m["R"], 1.75 * a["R"], rtol=1e-6)
+    np.testing.assert_allclose(m["R_stderr"], np.hypot(0.25, 0.75) * a["R_stderr"], rtol=1e-6)
+    assert m["photons"] == 4 * int(a["photons"]) and m["seconds"] == float(a["seconds"]) + 5.0
+    with pytest.raises(ValueError, match="different nodes"):
+        wf.merge_nodes(a, wf.load_node(wf.FAMILY_DIR / wf.node_file(0.3, 1.4)))
