@@ -6,14 +6,12 @@ g; the nodes at g = 0 for n = 1 and 1.4 are re-binned from the single-pair table
 one). ``--family --list`` prints each node's photons, events and run seconds.
 
 Cost of the shipped family (generated 2026-11-23 on the 2-core AMD EPYC machine, 2 JAX CPU devices, ``nice -n 10``
-beside 3-4 other jobs, load average 8-16; run seconds exclude compilation, ~10-60 s per g under that load):
-2e5 photons per node for g <= 0.8 and 1e5 for g = 0.9, 0.95 (``white_family.node_photons``); per node 6-25 s for
-g <= 0.6, 17-30 s for g = 0.8, 24-40 s for g = 0.9, 45-90 s for g = 0.95; events per photon ~120-240 / (1 - g)
-(more for higher n: internal reflections). The whole grid of 42 nodes: ~20 min of run time.
-
-``python -m jaxsss.mc.make_white_tables --regenerate [--g G --n N] [--photons N] [--path-max L] [--out DIR]``
-runs the engine and writes the tables; ``--list`` prints the tables in ``--out`` with their metadata. Kept apart from
-:mod:`jaxsss.mc.white` so that ``python -m`` does not re-import the module it runs.
+beside 3-4 other jobs, load average 8-16; run seconds exclude compilation, ~10-60 s per g under that load): two
+pooled runs per node (``--family`` then ``--family --add 1``), 6e5 photons for g <= 0.8 and 3e5 for g = 0.9 and
+0.95. Engine run time per node: g = 0: 20-28 s; 0.3: 23-43 s; 0.6: 39-77 s; 0.8: 73-125 s; 0.9: 63-117 s; 0.95:
+104-156 s (higher n costs more: internal reflections); events per photon 124-236 at g = 0 up to 2200-4600 at
+g = 0.95. The 40 generated nodes: 3000 s in all. The nodes g = 0, n = 1.0 and 1.4 are re-binned 10^6-photon tables
+(216 s and 431 s with the older kernel). ``--family --list`` prints each node's figures.
 """
 
 from __future__ import annotations

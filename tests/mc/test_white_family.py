@@ -33,19 +33,38 @@ def test_node_reproduced_exactly(fam, g, n):
                                rtol=0, atol=1e-12)
 
 
-@pytest.mark.parametrize("axis, at", [("g", 0.6), ("g", 0.9), ("n", 1.2), ("n", 1.4)])
-def test_continuous_and_c1_across_cell_boundaries(fam, axis, at):
-    def f(x):
-        g, n = (x, 1.3) if axis == "g" else (0.45, x)
-        return wf.white_family_profile(jnp.array([0.05, 0.5, 5.0]), 0.02, 1.5, g, n, fam)
+R3 = jnp.array([0.05, 0.5, 5.0])
 
+
+@pytest.fixture(scope="module")
+def full_jac(fam):
+    """Traced (sigma_a, sigma_s', g, n) -> (Jacobian (3, 4), values (3,)) at the radii R3: every node is used."""
+
+    def f(p):
+        y = wf.white_family_profile(R3, p[0], p[1], p[2], p[3], fam)
+        return y, y
+
+    return jax.jit(jax.jacfwd(f, has_aux=True))
+
+
+@pytest.mark.parametrize("axis, at", [("g", 0.6), ("g", 0.9), ("n", 1.2), ("n", 1.4)])
+def test_continuous_and_c1_across_cell_boundaries(full_jac, axis, at):
+    k = 2 if axis == "g" else 3
     eps = 1e-9
-    lo, hi = np.asarray(f(at - eps)), np.asarray(f(at + eps))
-    np.testing.assert_allclose(lo, hi, rtol=1e-7)
+    p = np.array([0.02, 1.5, 0.45, 1.3])
+    lo, hi = p.copy(), p.copy()
+    lo[k], hi[k] = at - eps, at + eps
+    (j_lo, v_lo), (j_hi, v_hi) = full_jac(jnp.asarray(lo)), full_jac(jnp.asarray(hi))
+    np.testing.assert_allclose(v_lo, v_hi, rtol=1e-7)
     # Cubic Hermite with shared node slopes: the derivative is continuous too.
-    d_lo = np.asarray(jax.jacfwd(f)(at - eps))
-    d_hi = np.asarray(jax.jacfwd(f)(at + eps))
-    np.testing.assert_allclose(d_lo, d_hi, rtol=1e-5, atol=1e-7 * np.abs(lo).max())
+    np.testing.assert_allclose(j_lo[:, k], j_hi[:, k], rtol=1e-5, atol=1e-7 * float(np.abs(v_lo).max()))
+
+
+def test_fixed_g_n_block_equals_the_whole_grid(fam, full_jac):
+    # Concrete (g, n) evaluates only the 4 x 4 block of nodes with non-zero weights; traced ones use every node.
+    for g, n in [(0.72, 1.33), (0.0, 1.0), (0.95, 1.6), (0.1, 1.55)]:
+        _, full = full_jac(jnp.array([0.02, 1.5, g, n]))
+        np.testing.assert_allclose(wf.white_family_profile(R3, 0.02, 1.5, g, n, fam), full, rtol=1e-12)
 
 
 @pytest.mark.parametrize("r", [0.3, 3.0])
@@ -74,14 +93,6 @@ def test_sigma_a_zero_finite_and_plane_integral(fam):
         jnp.array([0.0, 1.0, 0.5, 1.3]))
     assert np.all(np.isfinite(np.asarray(grads))), grads
     assert float(grads[0]) < 0.0  # absorption lowers R
-
-
-def test_fixed_g_n_block_equals_the_whole_grid(fam):
-    # Concrete (g, n) evaluates only the 4 x 4 block of nodes with non-zero weights; traced ones use every node.
-    r = jnp.array([0.05, 0.5, 5.0])
-    full = jax.jit(lambda g, n: wf.white_family_profile(r, 0.02, 1.5, g, n, fam))
-    for g, n in [(0.72, 1.33), (0.0, 1.0), (0.95, 1.6), (0.1, 1.55)]:
-        np.testing.assert_allclose(wf.white_family_profile(r, 0.02, 1.5, g, n, fam), full(g, n), rtol=1e-12)
 
 
 def test_shapes_broadcast(fam):
