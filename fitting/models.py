@@ -13,13 +13,13 @@ Registered models:
   and ``T``. The number of image pairs is static under ``jit``: :meth:`ForwardModel.prepare` chooses it on the host
   with :func:`jaxsss.multipole_n_pairs` from concrete parameter values.
 
-- ``mc``: the white ("scaled") Monte Carlo model of a half-space (Kienle and Patterson 1996),
-  :func:`jaxsss.mc.white_mc_profile`; gives ``R`` only. Transport-accurate for the ``(g, n)`` of a shipped table
-  (:func:`jaxsss.mc.available_white_tables`): ``g`` and ``eta`` are fixed by the fit (``g=...``, ``eta=...``) and
-  must name a table. The table is **already per incident photon** (specular excluded: the engine's convention), so
-  this model does *not* multiply by ``T_entry``. Its default fit range starts at ``0.1 l_u`` (see
-  :data:`MC_R_MIN_LU`), and the start is clamped into the table's validity range ``sigma_a / sigma_s >=
-  table.valid_mu_min`` (a note in the result); a solution outside it is a warning of the result.
+- ``mc``: the white ("scaled") Monte Carlo model of a half-space (Kienle and Patterson 1996) for any ``(g, n)`` in
+  the family's grid, :func:`jaxsss.mc.white_family.white_family_profile` (``g`` in [0, 0.95], ``eta`` in [1, 1.6]);
+  gives ``R`` only. ``g`` and ``eta`` are fixed by the fit (``g=...``, ``eta=...``); outside the grid is a
+  ``ValueError`` naming the value and the range. The profile is **already per incident photon** (specular excluded:
+  the engine's convention), so this model does *not* multiply by ``T_entry``. Its default fit range starts at
+  ``0.1 l_u`` (see :data:`MC_R_MIN_LU`); it is valid for every ``sigma_a >= 0`` (a diffusion tail continues the
+  tables' long paths).
 
 Other models register themselves with :func:`register_model`. This module imports only jaxsss's public API.
 """
@@ -172,69 +172,64 @@ table's far bins hold few photons: their noise makes local minima (issue 18: noi
 to 14 l_d gave sigma_a +54% at a misfit that looked like noise, reported reliable; the same data to 10 l_d: exact)."""
 
 
-def _mc_key(g, eta) -> tuple[float, float]:
-    return round(float(g), 2), round(float(eta), 2)
-
-
 def has_white_table(g, eta) -> bool:
-    """Whether a shipped white Monte Carlo table serves ``(g, eta)`` (the ``mc`` model's lookup, to 2 decimals)."""
-    from jaxsss.mc import available_white_tables
+    """Whether the white Monte Carlo family covers ``(g, eta)`` (the ``mc`` model's range; ambient index 1)."""
+    from jaxsss.mc import white_family as wf
 
-    return _mc_key(g, eta) in [_mc_key(a, b) for a, b in available_white_tables()]
+    return wf.covers(g, eta)
 
 
-@lru_cache(maxsize=8)
-def mc_table(g: float, n: float):
-    """The shipped white Monte Carlo table for ``(g, n)`` (cached: loaded once per process)."""
-    from jaxsss.mc import load_white_table
+@lru_cache(maxsize=1)
+def _mc_family():
+    from jaxsss.mc.white_family import load_white_family
 
     # Concrete arrays even when first called inside a trace (a cached tracer would leak out of it).
     with jax.ensure_compile_time_eval():
-        return load_white_table(g, n)
+        return load_white_family()
+
+
+def mc_table(g: float, n: float):
+    """The white Monte Carlo family that serves ``(g, n)`` (loaded once per process); raises outside its range."""
+    _mc_configure("mc_table", n, g)
+    return _mc_family()
 
 
 def _mc_configure(owner, eta, g):
-    from jaxsss.mc import available_white_tables
+    from jaxsss.mc import white_family as wf
 
-    pairs = available_white_tables()
-    listing = ", ".join(f"(g={a:g}, eta={b:g})" for a, b in pairs) or "none"
     if g is None:
-        raise ValueError(f"{owner}(model='mc') needs g=... (the Henyey-Greenstein anisotropy of a white Monte Carlo "
-                         f"table); available (g, eta) pairs: {listing}")
-    etas = np.unique(np.round(np.asarray(eta, dtype=np.float64), 2))
+        raise ValueError(f"{owner}(model='mc') needs g=... (the Henyey-Greenstein anisotropy; the white Monte Carlo "
+                         f"family covers g in [{wf.G_NODES[0]:g}, {wf.G_NODES[-1]:g}])")
+    etas = np.unique(np.asarray(eta, dtype=np.float64))
     if etas.size != 1:
-        raise ValueError(f"{owner}(model='mc', eta={etas.tolist()}): one eta per fit (one table); fit each eta apart")
-    key = _mc_key(g, etas[0])
-    if not has_white_table(*key):
-        raise ValueError(f"{owner}(model='mc', g={float(g):g}, eta={float(etas[0]):g}): no white Monte Carlo table for "
-                         f"this pair; available (g, eta) pairs: {listing}. Generate one with `python -m "
-                         f"jaxsss.mc.white --regenerate --g {float(g):g} --n {float(etas[0]):g}`")
-    mc_table(*key)  # load on the host, before any tracing
-    return key
+        raise ValueError(f"{owner}(model='mc', eta={etas.tolist()}): one eta per fit; fit each eta apart")
+    wf.check_covered(g, etas[0], owner=f"{owner}(model='mc', ...)")
+    _mc_family()  # load on the host, before any tracing
+    return float(g), float(etas[0])
 
 
 @partial(jax.custom_jvp, nondiff_argnums=(3,))
 def mc_R(r, sigma_a, sigma_s_prime, static):
-    """:func:`jaxsss.mc.white_mc_profile` for the table ``static = (g, n)``, per incident photon.
+    """:func:`jaxsss.mc.white_family.white_family_profile` at ``static = (g, n)``, per incident photon.
 
     Its JVP rule forms the ``(N, 2)`` Jacobian in ``(sigma_a, sigma_s')`` once with :func:`jax.jacfwd` and applies it
     to the tangents. The result is the same derivative, but the solver's linearisation, its materialised Jacobian and
     its transposition then see a matrix product instead of the table's spline and node correction: the compiled fit
     is about half the size (compile time is what a single fit costs)."""
-    from jaxsss.mc import white_mc_profile
+    from jaxsss.mc.white_family import white_family_profile
 
-    return white_mc_profile(r, sigma_a, sigma_s_prime, mc_table(*static))
+    return white_family_profile(r, sigma_a, sigma_s_prime, *static, _mc_family())
 
 
 def _mc_R_jvp(static, primals, tangents):
-    from jaxsss.mc import white_mc_profile
+    from jaxsss.mc.white_family import white_family_profile
 
     r, sa, ss = primals
     tr, tsa, tss = tangents
-    table = mc_table(*static)
+    fam = _mc_family()
 
     def f(p):
-        y = white_mc_profile(r, p[0], p[1], table)
+        y = white_family_profile(r, p[0], p[1], *static, fam)
         return y, y
 
     p = jnp.stack(jnp.broadcast_arrays(sa, ss))
@@ -246,7 +241,7 @@ def _mc_R_jvp(static, primals, tangents):
     if not isinstance(tss, zero):
         out = out + jac[..., 1] * tss
     if not isinstance(tr, jax.custom_derivatives.SymbolicZero):
-        out = out + jax.jvp(lambda rr: white_mc_profile(rr, sa, ss, table), (r,), (tr,))[1]
+        out = out + jax.jvp(lambda rr: white_family_profile(rr, sa, ss, *static, fam), (r,), (tr,))[1]
     return val, out
 
 
@@ -258,16 +253,11 @@ def _mc(r, medium, thickness, static):
     return {"R": mc_R(r, medium.sigma_a, medium.sigma_s_prime, static)}
 
 
-def _mc_ratio_min(static) -> float:
-    """``sigma_a / sigma_s' >= valid_mu_min / (1 - g)`` (the table's ``sigma_a / sigma_s`` bound)."""
-    g, n = static
-    return mc_table(g, n).valid_mu_min / (1.0 - g)
-
-
 register_model(
     ForwardModel(
         "mc",
-        "white Monte Carlo half-space (Kienle and Patterson 1996), transport-accurate for a tabulated (g, eta); R only",
+        "white Monte Carlo half-space (Kienle and Patterson 1996), transport-accurate for g in [0, 0.95] and eta in "
+        "[1, 1.6] (a table family, interpolated); R only",
         ("R",),
         False,
         _mc,
@@ -276,7 +266,6 @@ register_model(
         r_min_lu=MC_R_MIN_LU,
         range_reason=("r >= 0.1 l_u at the initial guess (the white-MC model is transport near the source; 0.1 l_u "
                       "is beyond the table's merged first radial bin)"),
-        ratio_min=_mc_ratio_min,
         r_max_ld=MC_R_MAX_LD,
     )
 )

@@ -19,7 +19,8 @@ columns r_mm, R[, R_stderr][, T, T_stderr] (a header line and '#' comments allow
 columns, or a .npz with arrays of those names. r is in mm; R and T in 1/mm^2 per INCIDENT photon (absolute: the
 models include the entry transmittance 1 - F(eta, cos 0); the mc model's tables are per incident photon already),
 or in any unit with --relative (a free scale is fitted). The mc model (white Monte Carlo, transport-accurate) needs
---g and an (--g, --eta) pair with a shipped table; its default range starts at 0.1 l_u.
+--g; it covers g in [0, 0.95] and eta in [1, 1.6] (a family of tables, interpolated); its default range starts at
+0.1 l_u.
 
 Solver: Optimistix Levenberg-Marquardt (--solver to change) in log-parameters; weights 1/stderr when the file has
 standard errors, else relative residuals. Fit range: by default r >= l_u (one transport mean free path at the
@@ -32,7 +33,7 @@ output says so), 2 on a user error.
 
 MCML runs: a .mco file (MCML 1.2.2's output) carries its own layers (n, g, thicknesses), ambient indices and photon
 count, so it needs no other argument: `jaxsss fit RUN.mco --json`. The default model there is mc, the
-transport-accurate one: the white-MC table where one exists for a half-space's (g, n), else replay (perturbation)
+transport-accurate one: white MC for a half-space whose (g, n) the family covers, else replay (perturbation)
 Monte Carlo of the file's geometry with a trust region (seconds for a slab, up to minutes for a weakly absorbing
 half-space or a stack; --photons per simulation). The deepest layer is fitted, the others stay at the file's values
 (--free-layers chooses, top layer 0); the JSON's sigma_a and sigma_s_prime list the free layers, deepest first.
@@ -59,8 +60,8 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
                    + "; ".join(f"{m.name}: {m.summary}" for m in FORWARD_MODELS.values()))
     p.add_argument("--thickness", type=number, metavar="D", help="slab thickness, mm, > 0 (multipole; required there)")
     p.add_argument("--g", type=number, metavar="G",
-                   help="Henyey-Greenstein anisotropy, fixed (mc model; required there: with --eta it picks a white "
-                   "Monte Carlo table, e.g. g 0 or 0.9 with eta 1 or 1.4)")
+                   help="Henyey-Greenstein anisotropy, fixed (mc model; required there: g in [0, 0.95], eta in "
+                   "[1, 1.6])")
     p.add_argument("--relative", action="store_true", help="the profile has an unknown scale (fitted)")
     p.add_argument("--free-eta", action="store_true", help="also fit eta (usually fixed)")
     p.add_argument("--r-min", type=number, metavar="R", help="smallest radius fitted, mm (default: l_u at the guess)")

@@ -7,7 +7,9 @@
 - :func:`simulate_edge` -- a pencil beam near a right-angled edge (quarter-space), for the quadpole
   (:mod:`jaxsss.mc.edge`, :class:`EdgeResult`);
 - :func:`white_mc_profile` -- the white ("scaled") Monte Carlo radial profile, transport-accurate and differentiable,
-  from the shipped tables (:func:`load_white_table`, :func:`available_white_tables`; :mod:`jaxsss.mc.white`).
+  from the shipped tables (:func:`load_white_table`, :func:`available_white_tables`; :mod:`jaxsss.mc.white`);
+- :func:`white_family_profile` -- the same for any ``(g, n)`` in ``[0, 0.95] x [1, 1.6]``, interpolated over a family of
+  tables (:func:`load_white_family`; :mod:`jaxsss.mc.white_family`), differentiable in ``g`` too.
 """
 
 from jaxsss.mc.edge import EdgeResult, simulate_edge
@@ -22,18 +24,22 @@ from jaxsss.mc.white import (
     white_mc_profile,
     white_mc_profile_stderr,
 )
+from jaxsss.mc.white_family import WhiteFamily, load_white_family, white_family_profile
 
 __all__ = [
     "EdgeResult",
     "Layer",
     "MCResult",
     "Stack",
+    "WhiteFamily",
     "WhiteTable",
     "available_white_tables",
+    "load_white_family",
     "load_white_table",
     "simulate",
     "simulate_edge",
     "use_cpu_devices",
+    "white_family_profile",
     "white_mc_medium_profile",
     "white_mc_profile",
     "white_mc_profile_stderr",

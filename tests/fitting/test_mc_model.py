@@ -1,27 +1,26 @@
 """The white Monte Carlo forward model ``mc`` in the fitting registry: exact recovery of its own profiles, recovery
-of a Monte Carlo simulated measurement, the validity warning, and the errors for a missing table.
+of a Monte Carlo simulated measurement, and the errors for (g, eta) outside the white-MC family.
 
-Every fit here uses the (g = 0, n = 1.4) table and at most four problems, so they share one compilation (~30 s of
-the ~40 s this module takes; the white-MC model is a large graph)."""
+Every fit here is at one off-grid (g, n) = (0.5, 1.35) of the family (between its nodes on both axes) and at most four
+problems, so they share one compilation (the white-MC model is a large graph)."""
 
 import numpy as np
 import pytest
 
 import fitting
-from jaxsss.mc import Stack, load_white_table, simulate, white_mc_profile
+from jaxsss.mc import Stack, simulate, white_family_profile
 
-G, N = 0.0, 1.4
-TABLE = load_white_table(G, N)
+G, N = 0.5, 1.35
 R_GRID = np.geomspace(0.02, 30.0, 50)
 
 
 @pytest.fixture(scope="module")
 def noise_free_fit():
-    # Channel 0: albedo ~0.98; channel 1: sigma_a / sigma_s' = 1e-3, below the table's validity limit (2e-3 for g = 0).
+    # Channel 0: albedo ~0.98; channel 1: sigma_a / sigma_s' = 1e-3 (the family holds down to sigma_a = 0: the
+    # single-pair tables' validity limit, 2e-3 for g = 0, is gone).
     sa, ss = np.array([0.02, 0.001]), np.array([1.0, 1.0])
-    R = np.asarray(white_mc_profile(R_GRID[:, None], sa, ss, TABLE))
-    with pytest.warns(fitting.FitWarning, match="validity range"):
-        fit = fitting.fit_profile(R_GRID, R, eta=N, model="mc", g=G)
+    R = np.asarray(white_family_profile(R_GRID[:, None], sa, ss, G, N))
+    fit = fitting.fit_profile(R_GRID, R, eta=N, model="mc", g=G)
     return fit, sa, ss
 
 
@@ -36,26 +35,26 @@ def test_noise_free_profile_recovered_to_1e6(noise_free_fit):
 def test_default_range_and_validity_are_recorded(noise_free_fit):
     fit, sa, ss = noise_free_fit
     assert "0.1 l_u" in fit.range_reason
-    # Channel 0's start is inside the validity range (channel 1's was clamped after the cut was set).
-    np.testing.assert_allclose(fit.r_cut[0], 0.1 / (fit.guess_sigma_a[0] + fit.guess_sigma_s_prime[0]), rtol=1e-12)
+    np.testing.assert_allclose(fit.r_cut, 0.1 / (fit.guess_sigma_a + fit.guess_sigma_s_prime), rtol=1e-12)
     assert fit.static == (G, N)
-    assert len(fit.model_warnings) == 1 and "1 of 2 fits" in fit.model_warnings[0]
+    assert not fit.model_warnings and not fit.warnings
     assert fit.to_dict()["g"] == G and fit.to_dict()["model"] == "mc"
 
 
 def test_mc_does_not_apply_the_entry_transmittance(noise_free_fit):
-    """The model is the table itself (per incident photon); the diffusion models multiply by 1 - F(eta, 1) = 0.972."""
+    """The model is the family itself (per incident photon); the diffusion models multiply by 1 - F(eta, 1)."""
     fit, sa, ss = noise_free_fit
     pred = fit.predict(R_GRID)["R"]
-    np.testing.assert_allclose(pred, np.asarray(white_mc_profile(R_GRID, sa[:, None], ss[:, None], TABLE)), rtol=1e-5)
+    np.testing.assert_allclose(pred, np.asarray(white_family_profile(R_GRID, sa[:, None], ss[:, None], G, N)),
+                               rtol=1e-5)
 
 
 def test_monte_carlo_measurement_recovered():
-    """1e5 photons of the engine (same g and n as the table), albedo 0.8, 60 equal bins to 6 mm (~6 l_d).
+    """1e5 photons of the engine at the off-grid (g, n), albedo 0.8, 60 equal bins to 6 mm (~6 l_d).
 
     Tolerance: 4 standard errors (the fit's own, from the data's per-bin errors) plus 1% for the model's systematic
-    error: the table's own Monte Carlo noise and pathlength discretisation, and the curvature of R within the data's
-    bins (a bin average is fitted as a point value). At 1e6 photons the bias is 0.3-0.7% for albedo 0.8-0.99."""
+    error: the nodes' Monte Carlo noise, their interpolation, the pathlength discretisation, and the curvature of R
+    within the data's bins (a bin average is fitted as a point value)."""
     sa, ss = 0.25, 1.0
     edges = np.linspace(0.0, 6.0, 61)
     res = simulate(Stack.half_space(sa, ss / (1 - G), G, N), 100_000, seed=3, r_edges=edges, progress=False)
@@ -70,17 +69,19 @@ def test_monte_carlo_measurement_recovered():
 @pytest.mark.parametrize(
     "kwargs, match",
     [
-        (dict(model="mc", g=0.5), r"no white Monte Carlo table .*available \(g, eta\) pairs: .*\(g=0, eta=1.4\)"),
-        (dict(model="mc"), r"needs g=\.\.\..*available"),
+        (dict(model="mc", g=0.97), r"g=0.97 is outside the white Monte Carlo family's range \[0, 0.95\]"),
+        (dict(model="mc", g=0.5, eta=1.7), r"eta=1.7 is outside the white Monte Carlo family's range \[1, 1.6\]"),
+        (dict(model="mc", g=0.5, eta=0.9), r"eta=0.9 is outside the white Monte Carlo family's range \[1, 1.6\]"),
+        (dict(model="mc"), r"needs g=\.\.\..*g in \[0, 0.95\]"),
         (dict(model="mc", g=0.0, free_eta=True), "free_eta"),
         (dict(model="dipole", g=0.0), r"g=0.0\) applies to the transport model only"),
         (dict(model="mc", g=1.0), r"outside the allowed range \(-1, 1\)"),
     ],
 )
-def test_missing_table_and_bad_g_are_named(kwargs, match):
+def test_outside_the_family_and_bad_g_are_named(kwargs, match):
     R = np.exp(-R_GRID)
     with pytest.raises(ValueError, match=match):
-        fitting.fit_profile(R_GRID, R, eta=N, **kwargs)
+        fitting.fit_profile(R_GRID, R, **({"eta": N} | kwargs))
 
 
 def test_mc_is_registered():
