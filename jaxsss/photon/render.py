@@ -40,11 +40,14 @@ from jaxsss.profiles.blend import blended_unchecked
 from jaxsss.profiles.oblique import KAPPA_COEFFICIENTS, kappa_unchecked
 from jaxsss.profiles.point_sources import DEFAULT_N_PAIRS
 from jaxsss.render import radiance as rad
+from jaxsss.render.lights import refuse_lights
 from jaxsss.render.methods import Preparation, register_method
 from jaxsss.render.pairs import BLOCK_PAIRS, pair_blocks
 from jaxsss.render.plan import PlanItem, make_plan
 from jaxsss.render.rays import SceneGeometry
 from jaxsss.render.shading import ShadedPoints, point_shading, shaded_fields, shading_points
+
+_AREA_REFUSAL = "its photons are emitted from point, spot and directional lights only (jaxsss.photon.emit)"
 
 __all__ = ["DEFAULT_EPS", "PhotonPrepared", "photon_geometry", "prepare_photon", "source_power", "trace_scene"]
 
@@ -145,6 +148,7 @@ def trace_scene(scene, n_photons: int, *, walk: str | None = None, seed: int | N
 
     ``walk`` defaults to ``"sources"`` for a convex mesh (no light re-enters, so a photon is done once it has stored
     its source) and ``"full"`` otherwise (:func:`~jaxsss.photon.trace.trace_photons`)."""
+    refuse_lights(scene, "photon", why=_AREA_REFUSAL)
     geometry, blockers = photon_geometry(scene)
     sphere = scene.mesh.bounding_sphere.primitive
     seed = scene.render.seed if seed is None else seed
@@ -206,6 +210,7 @@ def prepare_photon(scene, *, n_photons: int | None = None, eps: float | None = N
         ``(prepared, plan, info)``: the :class:`PhotonPrepared`, the :class:`~jaxsss.render.plan.ScenePlan` (method
         ``"photon"``, its own items) and timings (s) and counts.
     """
+    refuse_lights(scene, "photon", why=_AREA_REFUSAL)
     if kappa not in KAPPA_COEFFICIENTS:
         raise ValueError(f"prepare_photon(kappa={kappa!r}) is not one of: {', '.join(KAPPA_COEFFICIENTS)}")
     n_photons = scene.render.photons if n_photons is None else n_photons
