@@ -116,11 +116,12 @@ def _dilate(lum: np.ndarray) -> np.ndarray:
 
 @dataclass(frozen=True, eq=False)
 class EnvironmentMap:
-    """A lat-long environment: ``image`` ``(H, W, 3)`` radiance in W/(mm^2 sr) (times ``scale``), ``rotation``
-    ``(3, 3)`` local-to-world, and its sampling tables (built by :meth:`build`).
+    """A lat-long environment: ``image`` ``(H, W, 3)`` radiance in W/(mm^2 sr), ``rotation`` ``(3, 3)``
+    local-to-world, and its sampling tables (built by :meth:`build`). The scene's ``scale`` is the environment
+    light's ``intensity`` (:class:`jaxsss.render.scene.Light`), applied by the callers.
 
     Attributes:
-        image: ``(H, W, 3)`` linear radiance, already multiplied by the scene's ``scale``.
+        image: ``(H, W, 3)`` linear radiance as read from the file (or the constant radiance as ``(1, 1, 3)``).
         rotation: ``(3, 3)`` the map's ``to_world`` rotation.
         path: the file it came from, or ``None`` for a constant environment.
         cell_cdf: ``(H * W,)`` cumulative probability of the cells (row-major).
