@@ -63,7 +63,7 @@ class LightField(NamedTuple):
             included; zero where the light is below the horizon or blocked).
         to_light: ``(P, L, 3)`` unit direction from the point towards the light (an extended light's column: at the
             bin's mean cosine to the normal, in the azimuth of its irradiance-weighted mean direction; the normal where
-            the bin is empty). ``to_light . normal == cos`` for every column.
+            the bin is empty). ``to_light . normal == cos`` for every column that holds light.
     """
 
     cos: np.ndarray

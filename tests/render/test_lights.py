@@ -79,6 +79,10 @@ def test_cosine_bins_reproduce_the_hemispherical_entry_fresnel(eta, sky_on_plane
     exact = np.trapezoid(2.0 * np.asarray(_transmittance(eta, mu)) * mu, mu)
     assert ratio == pytest.approx(exact, rel=2e-3)
     np.testing.assert_allclose(np.linalg.norm(field.to_light, axis=-1), 1.0, atol=1e-12)
+    # Each column's direction is at its mean cosine (single scattering and GGX read the angle from it).
+    lit = field.irradiance[..., 0] > 0
+    assert lit.mean() > 0.9
+    np.testing.assert_allclose(field.to_light[..., 2][lit], field.cos[lit], atol=1e-12)
 
 
 def test_uniform_environment_lights_a_convex_object_evenly_with_shadow_rays():
