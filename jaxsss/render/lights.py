@@ -21,12 +21,9 @@ cosine and a direction at that cosine (in the azimuth of the bin's mean directio
 GGX terms, which read the direction, see the right angle of incidence. The entry Fresnel ``F_t(eta, cos)`` is smooth in ``cos``, so 8 bins reproduce the exact
 hemispherical average of a uniform sky (``F_dt,ext``) to better than 0.2% for eta in [1, 1.5] (test).
 
-A smooth boundary (no ``specular_roughness``) also reflects extended lights into the eye, which delta lights never do
-(a mirror image of a point is a point): :func:`mirror_radiance` finds, in NumPy, the radiance of the area and
-environment lights seen along each shaded point's mirror direction (occluded by the scene), and
-:func:`mirror_reflection` multiplies it by the exact Fresnel reflectance ``F(eta, cos_o)`` in JAX. Occluders and the
-object itself seen in the mirror add nothing (their reflection is not modelled). With a ``specular_roughness``, the
-GGX highlight of an extended light is evaluated on its cosine-bin columns (an approximation for large lights).
+A smooth boundary also shows the mirror image of extended lights (:mod:`jaxsss.render.mirror`). With a
+``specular_roughness``, the GGX highlight of an extended light is evaluated on its cosine-bin columns (an
+approximation for large lights).
 
 Sample streams are deterministic: they depend on ``seed``, the light's kind and placement, and the point's index only
 (not on the other lights, so an image is exactly additive in its lights).
@@ -42,7 +39,7 @@ import zlib
 import numpy as np
 
 __all__ = ["AREA_KINDS", "COS_BINS", "DELTA_KINDS", "EXTENDED_KINDS", "LightField", "capped_samples", "light_columns",
-           "light_field", "mirror_radiance", "mirror_reflection", "refuse_lights", "spot_factor"]
+           "light_field", "refuse_lights", "spot_factor"]
 
 DELTA_KINDS = ("point", "directional", "spot")
 AREA_KINDS = ("sphere", "rectangle")
@@ -96,8 +93,8 @@ def refuse_lights(scene, method: str, allowed=DELTA_KINDS, why: str = "") -> Non
             key = getattr(light, "key", "") or f"light[{i}]"
             article = "an" if light.kind[0] in "aeiou" else "a"
             raise ValueError(f"[{key}] {article} {light.kind} light cannot be rendered by --method {method}"
-                             f"{': ' + why if why else ''}; it takes {', '.join(allowed)} lights; use --method "
-                             "hierarchical, direct or cached for area and environment lights")
+                             f"{': ' + why if why else ''}; it takes {', '.join(allowed)} lights; --method "
+                             "hierarchical, direct and cached take every kind")
 
 
 def spot_factor(cos_axis: np.ndarray, cone_deg: float, falloff_deg: float) -> np.ndarray:
@@ -321,64 +318,3 @@ def light_field(lights: Sequence, points: np.ndarray, normals: np.ndarray, geome
         col += 1
     return LightField(cos, irr, to)
 
-
-def mirror_radiance(lights: Sequence, points: np.ndarray, normals: np.ndarray, to_eye: np.ndarray,
-                    geometry=None) -> np.ndarray | None:
-    """Radiance of the area and environment lights seen along each point's mirror direction, ``(Q, C)``
-    W/(mm^2 sr), or ``None`` when the scene has no extended light.
-
-    Args:
-        points, normals, to_eye: ``(Q, 3)`` shaded points (mm), unit normals facing the eye and unit directions to it.
-        geometry: a :class:`~jaxsss.render.rays.SceneGeometry`: a mirror ray that hits the scene first sees nothing
-            (``None``: nothing blocks).
-    """
-    extended = [light for light in lights if light.kind in EXTENDED_KINDS]
-    if not extended:
-        return None
-    points, normals, to_eye = (np.asarray(a, dtype=np.float64) for a in (points, normals, to_eye))
-    n_channels = max(np.asarray(light.intensity).size for light in lights)
-    # Mirror direction: r = 2 (n . v) n - v.
-    r = 2.0 * np.einsum("ij,ij->i", normals, to_eye)[:, None] * normals - to_eye
-    r /= np.maximum(np.linalg.norm(r, axis=1, keepdims=True), 1e-300)
-    blocked_at = np.full(len(points), np.inf)
-    if geometry is not None and len(points):
-        hits = geometry.first_hit(points + geometry.offset * normals, r)
-        blocked_at = np.where(hits.hit, hits.t, np.inf)
-    out = np.zeros((len(points), n_channels))
-    for light in extended:
-        radiance = np.asarray(light.intensity, dtype=np.float64)
-        if light.kind == "environment":
-            out += np.where(np.isinf(blocked_at)[:, None], light.environment.radiance(r) * radiance, 0.0)
-            continue
-        if light.kind == "sphere":
-            # Ray-sphere: t = b - sqrt(b^2 - c) with b = (c - p) . r, c = |c - p|^2 - R^2 (the near side).
-            oc = np.asarray(light.position, dtype=np.float64) - points
-            b = np.einsum("ij,ij->i", oc, r)
-            disc = b * b - (np.einsum("ij,ij->i", oc, oc) - float(light.radius) ** 2)
-            t = b - np.sqrt(np.clip(disc, 0.0, None))
-            hit = (disc > 0) & (t > 0)
-        else:
-            # Ray-plane, then inside the rectangle and on its front side (r . n < 0).
-            n = np.asarray(light.direction, dtype=np.float64)
-            e_v = np.asarray(light.up, dtype=np.float64)
-            e_u = np.cross(e_v, n)
-            denom = r @ n
-            t = np.einsum("ij,j->i", np.asarray(light.position, dtype=np.float64) - points, n) / np.where(
-                denom < 0, denom, -1.0)
-            y = points + t[:, None] * r - np.asarray(light.position, dtype=np.float64)
-            hit = (denom < 0) & (t > 0) & (np.abs(y @ e_u) <= light.size[0] / 2) & (np.abs(y @ e_v) <= light.size[1] / 2)
-        out += np.where((hit & (t < blocked_at))[:, None], radiance, 0.0)
-    return out
-
-
-def mirror_reflection(medium, normal, to_eye, mirror):
-    """The mirror image of the extended lights in a smooth boundary, ``(Q, C)`` W/(mm^2 sr): ``F(eta, cos_o) L_m``
-    with the exact unpolarised Fresnel reflectance for light arriving from outside (eta = n_inside / n_outside) and
-    ``L_m`` from :func:`mirror_radiance` (JAX: differentiable in eta)."""
-    import jax.numpy as jnp
-
-    from jaxsss.fresnel import fresnel_unpolarised
-
-    cos_o = jnp.clip(jnp.sum(normal * to_eye, axis=-1), 0.0, 1.0)
-    # Reflection at a smooth dielectric: L = F_r(eta, cos_o) L(r).
-    return fresnel_unpolarised(cos_o, medium.eta)[:, None] * mirror

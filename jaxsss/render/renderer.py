@@ -27,13 +27,13 @@ from jaxsss.render.octree import build_octree
 from jaxsss.render.pairs import BLOCK_PAIRS, PairLists, near_radius, pair_info, pair_lists
 from jaxsss.render.plan import ScenePlan, make_plan
 from jaxsss.render.rays import SceneGeometry
-from jaxsss.render.lights import EXTENDED_KINDS, mirror_radiance, mirror_reflection
+from jaxsss.render.mirror import ReflectingPoints, mirror_field
 from jaxsss.render.samples import irradiance_samples
-from jaxsss.render.shading import ShadedPoints, ShadingPoints, point_shading, shaded_fields, shading_points
+from jaxsss.render.shading import ShadingPoints, point_shading, shaded_fields, shading_points
 
 __all__ = ["Prepared", "assemble_prepared", "irradiance_pass", "prepare"]
 
-class Prepared(ShadedPoints):
+class Prepared(ReflectingPoints):
     """Everything an image needs except the material. Arrays are sorted for the sums; see :func:`prepare`.
 
     ``Q`` shaded points (camera-ray hits on the translucent object), ``N`` samples in octree order, ``E`` octree
@@ -60,16 +60,6 @@ class Prepared(ShadedPoints):
     rho0: jax.Array  # ()
     method: str = eqx.field(static=True)
     shared_channel: bool = eqx.field(static=True)
-    # Radiance of area/environment lights along each shaded point's mirror direction (smooth boundary), or None.
-    mirror: jax.Array | None = None  # (Q, C)
-
-    def radiance_from_exitance(self, medium: Medium, exitance):
-        """The shared radiance (:class:`ShadedPoints`) plus the mirror image of area and environment lights in a
-        smooth boundary (:func:`jaxsss.render.lights.mirror_reflection`)."""
-        out = super().radiance_from_exitance(medium, exitance)
-        if self.mirror is not None:
-            out = out + mirror_reflection(medium, self.query_normal, self.to_eye, self.mirror)
-        return out
 
     def sample_flux(self, medium: Medium):
         """``(N, C)`` flux entering the medium at each sample, W."""
@@ -147,11 +137,7 @@ def assemble_prepared(scene, plan: ScenePlan, samples, tree, shading: ShadingPoi
     """The :class:`Prepared` state from pass 1 (``samples``, ``tree``), the shaded points and their pair lists
     (``None``: no lists, for radiance and image assembly only). ``mirror``: add the mirror image of area and
     environment lights when the boundary is smooth (``geometry`` shadows it; built here when ``None``)."""
-    reflect = None
-    if mirror and scene.material.specular_roughness is None and any(
-            light.kind in EXTENDED_KINDS for light in scene.lights):
-        geometry = geometry or SceneGeometry(scene.mesh, [o.mesh for o in scene.occluders])
-        reflect = mirror_radiance(scene.lights, shading.pos, shading.normal, shading.to_eye, geometry)
+    reflect = mirror_field(scene, shading, geometry) if mirror else None
     def opt(a):
         return None if a is None else jnp.asarray(a)
 
@@ -175,7 +161,7 @@ def assemble_prepared(scene, plan: ScenePlan, samples, tree, shading: ShadingPoi
         rho0=jnp.asarray(pairs.rho0),
         method=plan.method,
         shared_channel=plan.shared_channel,
-        mirror=opt(reflect),
+        mirror=reflect,
     )
 
 
