@@ -245,24 +245,32 @@ def _extended(light, points, normals, geometry, seed: int, n_channels: int):
         pts, nrm = points[sl], normals[sl]
         rng = np.random.default_rng([int(seed), _stream_id(light), c])
         dirs, dist, weight = _SAMPLERS[light.kind](light, pts, nrm, rng)
+        weight = np.broadcast_to(weight, (*dirs.shape[:2], n_channels))
         cos = np.einsum("pnk,pk->pn", dirs, nrm)
         lit = (cos > 0) & (weight.max(axis=-1) > 0)
         if geometry is not None and lit.any():
             pi_, ni_ = np.nonzero(lit)
             vis = geometry.visible(pts[pi_], nrm[pi_], dirs[pi_, ni_], None if dist is None else dist[pi_, ni_])
             lit[pi_, ni_] = vis
+        # Sums per (point, bin) as bincounts over the lit samples (flat index point * B + bin).
+        pi_, ni_ = np.nonzero(lit)
+        cos_lit = cos[pi_, ni_]
+        flat = pi_ * COS_BINS + np.minimum((cos_lit * COS_BINS).astype(np.int64), COS_BINS - 1)
+        size = len(pts) * COS_BINS
+
+        def per_bin(values):
+            return np.bincount(flat, weights=values, minlength=size).reshape(len(pts), COS_BINS)
+
         # Irradiance: E = sum over samples of L cos V / pdf / n.
-        contrib = np.where(lit[..., None], weight * np.clip(cos, 0.0, None)[..., None], 0.0)
-        bins = np.clip((cos * COS_BINS).astype(np.int64), 0, COS_BINS - 1)
-        onehot = (bins[..., None] == np.arange(COS_BINS)) & lit[..., None]  # (P, n, B)
-        wt = contrib.mean(axis=-1)[..., None] * onehot  # channel-mean weight per sample and bin
-        irr = np.einsum("pnb,pnc->pbc", onehot.astype(np.float64), contrib)
-        wsum = wt.sum(axis=1)
-        mean_cos = np.einsum("pnb,pn->pb", wt, cos) / np.maximum(wsum, 1e-300)
+        c_lit = weight[pi_, ni_] * cos_lit[:, None]
+        wt = c_lit.mean(axis=-1)  # channel-mean weight of each sample
+        irr = np.stack([per_bin(c_lit[:, c]) for c in range(n_channels)], axis=-1)
+        wsum = per_bin(wt)
+        mean_cos = per_bin(wt * cos_lit) / np.maximum(wsum, 1e-300)
+        mean_dir = np.stack([per_bin(wt * dirs[pi_, ni_, k]) for k in range(3)], axis=-1)
         # The bin's direction: its mean cosine to the normal, at the azimuth of its mean direction (an average over
         # azimuths would tilt it towards the normal and give single scattering and GGX the wrong cosine).
         mean_cos = np.clip(mean_cos, 0.0, 1.0)
-        mean_dir = np.einsum("pnb,pnk->pbk", wt, dirs)
         tangent = mean_dir - np.einsum("pbk,pk->pb", mean_dir, nrm)[..., None] * nrm[:, None]
         t_norm = np.linalg.norm(tangent, axis=-1, keepdims=True)
         fallback = np.broadcast_to(_frame(nrm)[0][:, None], tangent.shape)
