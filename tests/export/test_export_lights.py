@@ -191,7 +191,7 @@ def test_pbrt_equal_area_map(tmp_path):
 
 
 def test_exported_sky_scene_reproduces_its_reference(tmp_path):
-    """Round trip of the committed environment-lit reference (skin1, eta 1.4, 16384 spp): write_scene -> Mitsuba
+    """Round trip of the committed environment-lit reference (skin1, eta 1.4, 65536 spp): write_scene -> Mitsuba
     scalar_rgb at 32 spp -> summed radiance over the fully covered pixels within 4% per channel. Measured: 0.98-1.03
     over seeds (R, the longest random walks, is the noisiest); sigma_a 10% too large moves G and B by 4-7%."""
     from pathlib import Path
