@@ -39,8 +39,8 @@ import numpy as np
 ROOT = Path(__file__).resolve().parents[1]
 REFERENCES = ROOT / "tests" / "export" / "references"
 NAME = "render_vs_path_tracer"
-SCENES = ("skin1_sphere", "g09_sphere")
-REFERENCE_SPP = {"skin1_sphere": 8192, "g09_sphere": 8192}
+SCENES = ("skin1_sphere", "g09_sphere", "skin1_sphere_env")
+REFERENCE_SPP = {"skin1_sphere": 8192, "g09_sphere": 8192, "skin1_sphere_env": 65536}
 REFERENCE_SEEDS = (0, 1)  # two halves, averaged; their difference measures the reference's noise
 LLVM_CANDIDATES = ("/usr/lib/x86_64-linux-gnu/libLLVM-19.so", "/usr/lib/x86_64-linux-gnu/libLLVM.so.19.1")
 ERROR_METRIC = "max over RGB of mean |relative error| over lit fully covered pixels vs the Mitsuba reference"
@@ -69,6 +69,27 @@ def load_reference(name: str):
             data["coverage"].astype(np.float64), meta)
 
 
+def skin1_env_sky() -> np.ndarray:
+    """The sky of ``skin1_sphere_env`` (``(32, 64, 3)``, lat-long, for ``rotate_deg = [90, 0, 0]``): a blue sky
+    brightening towards the zenith, a darker ground, and a soft sun (Gaussian, 10 degrees) towards skin1_sphere's
+    point light."""
+    from jaxsss.render.environment import uv_to_direction
+
+    h, w = 32, 64
+    uv = np.stack(np.meshgrid((np.arange(w) + 0.5) / w, (np.arange(h) + 0.5) / h), axis=-1)
+    local = uv_to_direction(uv)
+    world = np.stack([local[..., 0], -local[..., 2], local[..., 1]], axis=-1)  # rotate_deg [90, 0, 0]: z up
+    up = world[..., 2:]
+    sky = np.where(up > 0, np.array([0.35, 0.45, 0.65]) * (0.6 + 0.4 * up), np.array([0.12, 0.10, 0.08]))
+    sun = np.array([-90.0, -70.0, 50.0]) / np.linalg.norm([-90.0, -70.0, 50.0])
+    angle = np.arccos(np.clip(world @ sun, -1.0, 1.0))
+    return sky + 60.0 * np.exp(-0.5 * (angle / np.radians(10.0)) ** 2)[..., None] * np.array([1.0, 0.92, 0.8])
+
+
+SKIES = {"skin1_sphere_env": ("skin1_sphere_env_sky.npy", skin1_env_sky)}
+"""Environment maps of reference scenes, written next to their scene file before a reference is rendered."""
+
+
 def make_reference(name: str) -> dict:
     """Render and write ``<name>.npz`` and ``<name>.json`` (two half-spp renders with seeds :data:`REFERENCE_SEEDS`)."""
     import mitsuba as mi
@@ -77,6 +98,9 @@ def make_reference(name: str) -> dict:
     from jaxsss.export.compare import compare_images, pixel_geometry
     from jaxsss.render import load_scene
 
+    if name in SKIES:
+        file, make = SKIES[name]
+        np.save(REFERENCES / file, make())
     scene = load_scene(REFERENCES / f"{name}.toml")
     variant = xm.select_variant()
     spp = REFERENCE_SPP[name]

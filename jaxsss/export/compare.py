@@ -77,6 +77,8 @@ def pixel_geometry(scene, coverage_spp: int = 64) -> PixelGeometry:
         p = hits.position[idx]
         n = geometry.shading_normals(hits.face[idx], p)
         for k, light in enumerate(scene.lights):
+            if light.kind == "environment":  # light from every direction: no terminator (the column stays NaN)
+                continue
             if light.kind == "directional":
                 to = np.broadcast_to(-np.asarray(light.direction, dtype=np.float64), p.shape)
             else:

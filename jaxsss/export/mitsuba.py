@@ -20,6 +20,15 @@ Conventions matched (units: mm, so Mitsuba's unitless lengths are mm and its rad
   ``cutoff_angle``; jaxsss's uses a smoothstep (:func:`jaxsss.render.lights.spot_factor`). They agree inside the
   beam, at the cutoff and half way; in between they differ by up to 0.096 of the on-axis intensity
   (:func:`spot_falloff_difference`; measured on Mitsuba's own emitter in tests/export).
+  Area lights: a ``sphere`` (``center``, ``radius``) or ``rectangle`` shape (``to_world`` = ``look_at(position,
+  position + direction, up)`` times ``scale(width/2, height/2, 1)``: the height runs along ``up``, the width along
+  ``up x direction``, and it emits on the side ``direction`` points to, as jaxsss's) with an ``area`` emitter of
+  the same ``radiance`` and a black ``diffuse`` BSDF. Differs: Mitsuba's emitting shapes are seen by the camera and
+  block light; jaxsss's area lights are neither (keep them out of view and out of the way).
+  Environment: a constant one is a ``constant`` emitter (``radiance``); a map is an ``envmap`` of
+  ``environment.exr`` (the scene's ``scale`` multiplied in) with ``to_world`` = the map's rotation. jaxsss reads a
+  lat-long map exactly as Mitsuba's ``envmap`` does (:mod:`jaxsss.render.environment`: +y up in the map's frame,
+  ``u = 0`` towards -z, the same texel positions; checked against ``envmap.eval`` in tests/export).
 - **Camera.** ``perspective`` with ``fov_axis = "y"`` (jaxsss's vertical field of view), ``to_world = look_at``
   (Mitsuba's image x runs along forward x up, as jaxsss's), ``hdrfilm`` of the same ``(W, H)`` with row 0 at the
   top, and a ``box`` reconstruction filter so each pixel averages exactly its own square (jaxsss's pixels). jaxsss
@@ -30,7 +39,7 @@ Conventions matched (units: mm, so Mitsuba's unitless lengths are mm and its rad
 - **Mesh**: binary PLY (mm) with jaxsss's shading normals (:mod:`jaxsss.export.ply`).
 
 Not representable, refused by :func:`jaxsss.export.support.check_exportable`: blockers, layer textures, material
-textures, environment maps, a non-black background. ``output.exposure`` is a display setting of jaxsss's sRGB
+textures, a non-black background. ``output.exposure`` is a display setting of jaxsss's sRGB
 output and is not applied: Mitsuba's image is linear radiance.
 """
 
@@ -48,11 +57,12 @@ from xml.sax.saxutils import quoteattr
 import numpy as np
 
 from jaxsss.export.ply import OBJECT_ID, write_meshes
-from jaxsss.export.support import check_exportable, medium_arrays
+from jaxsss.export.support import ENVIRONMENT_ID, check_exportable, medium_arrays, write_environment
 
 __all__ = [
     "DEFAULT_SPP",
     "LookAt",
+    "Matrix",
     "MitsubaRender",
     "load",
     "medium_dict",
@@ -79,6 +89,19 @@ class LookAt(NamedTuple):
     origin: tuple
     target: tuple
     up: tuple
+
+
+class Matrix(NamedTuple):
+    """A ``to_world`` transform given as its ``(4, 4)`` matrix, row-major (16 numbers)."""
+
+    values: tuple
+
+
+def _matrix(linear: np.ndarray, translate=(0.0, 0.0, 0.0)) -> Matrix:
+    m = np.eye(4)
+    m[:3, :3] = linear
+    m[:3, 3] = np.asarray(translate, dtype=np.float64)
+    return Matrix(tuple(float(v) for v in m.ravel()))
 
 
 def _vec(a) -> list[float]:
@@ -120,7 +143,23 @@ def spot_falloff_difference(cone_deg: float, falloff_deg: float, n: int = 2001) 
     return float(np.max(np.abs(ours - theirs)))
 
 
-def _light(light, key: str) -> dict:
+def _light(light, key: str, mesh_files: dict | None = None) -> dict:
+    black = {"type": "diffuse", "reflectance": _rgb(0.0)}
+    if light.kind == "sphere":
+        return {"type": "sphere", "center": _vec(light.position), "radius": float(light.radius), "bsdf": black,
+                "emitter": {"type": "area", "radiance": _rgb(light.intensity)}}
+    if light.kind == "rectangle":
+        n, e_v = np.asarray(light.direction, dtype=np.float64), np.asarray(light.up, dtype=np.float64)
+        e_u = np.cross(e_v, n)  # look_at: x = up x dir, y = up, z = dir; the unit square [-1, 1]^2 scaled
+        width, height = light.size
+        linear = np.stack([e_u * width / 2.0, e_v * height / 2.0, n], axis=1)
+        return {"type": "rectangle", "to_world": _matrix(linear, light.position), "bsdf": black,
+                "emitter": {"type": "area", "radiance": _rgb(light.intensity)}}
+    if light.kind == "environment":
+        env = light.environment
+        if env.path is None:  # a constant environment: its one texel times the scale
+            return {"type": "constant", "radiance": _rgb(env.image[0, 0] * np.asarray(light.intensity))}
+        return {"type": "envmap", "filename": (mesh_files or {})[ENVIRONMENT_ID], "to_world": _matrix(env.rotation)}
     if light.kind == "point":
         return {"type": "point", "position": _vec(light.position), "intensity": _rgb(light.intensity)}
     if light.kind == "directional":
@@ -135,7 +174,8 @@ def _light(light, key: str) -> dict:
             "cutoff_angle": float(light.cone_deg),
             "beam_width": float(light.cone_deg - light.falloff_deg),
         }
-    raise ValueError(f"[{key}.type] {light.kind!r} cannot be exported; allowed: point, directional, spot")
+    raise ValueError(f"[{key}.type] {light.kind!r} cannot be exported; allowed: point, directional, spot, sphere, "
+                     "rectangle, environment")
 
 
 def _boundary(medium: dict, roughness) -> dict:
@@ -174,7 +214,9 @@ def scene_dict(scene, mesh_files: dict[str, str], *, spp: int = DEFAULT_SPP, see
 
     Args:
         scene: a jaxsss :class:`~jaxsss.render.scene.Scene`.
-        mesh_files: PLY file per shape id (``"object"``, ``"occluder_0"``, ...) as written by :func:`write_meshes`.
+        mesh_files: PLY file per shape id (``"object"``, ``"occluder_0"``, ...) as written by :func:`write_meshes`,
+            and the environment map's EXR as ``"environment"`` (:func:`jaxsss.export.support.write_environment`)
+            when the scene has one.
         spp: samples per pixel, >= 1.
         seed: the sampler's seed, >= 0.
         coverage: instead of the lit scene, a mask render: the object is an area light of radiance 1 seen by a
@@ -229,11 +271,20 @@ def scene_dict(scene, mesh_files: dict[str, str], *, spp: int = DEFAULT_SPP, see
                         "bsdf": _boundary(medium_arrays(scene.material.medium), scene.material.specular_roughness),
                         "interior": medium_dict(scene.material.medium)}
         for i, light in enumerate(scene.lights):
-            d[f"light_{i}"] = _light(light, f"light[{i}]")
+            d[f"light_{i}"] = _light(light, light.key or f"light[{i}]", mesh_files)
     for i, occ in enumerate(scene.occluders):
         d[f"occluder_{i}"] = {"type": "ply", "filename": mesh_files[f"occluder_{i}"],
                               "bsdf": {"type": "diffuse", "reflectance": _rgb(0.0 if coverage else occ.albedo)}}
     return d
+
+
+def _write_files(scene, directory, *, relative: bool) -> dict[str, str]:
+    """The PLY meshes and the environment map's EXR (if any) in ``directory``: file name per id."""
+    files = write_meshes(scene, directory, relative=relative)
+    env = write_environment(scene, directory, mapping="latlong")
+    if env is not None:
+        files[ENVIRONMENT_ID] = env if relative else str(Path(directory) / env)
+    return files
 
 
 # --- in-process ---------------------------------------------------------------------------------------------------
@@ -263,6 +314,8 @@ def to_mitsuba_dict(d):
 
     if isinstance(d, LookAt):
         return mi.ScalarTransform4f().look_at(origin=list(d.origin), target=list(d.target), up=list(d.up))
+    if isinstance(d, Matrix):
+        return mi.ScalarTransform4f(np.asarray(d.values, dtype=np.float64).reshape(4, 4).tolist())
     if isinstance(d, dict):
         return {k: to_mitsuba_dict(v) for k, v in d.items()}
     return d
@@ -285,7 +338,7 @@ def load(scene, *, spp: int = DEFAULT_SPP, seed: int = 0, coverage: bool = False
     import mitsuba as mi
 
     with tempfile.TemporaryDirectory(prefix="jaxsss_mitsuba_") as tmp:
-        files = write_meshes(scene, tmp)
+        files = _write_files(scene, tmp, relative=False)
         return mi.load_dict(to_mitsuba_dict(scene_dict(scene, files, spp=spp, seed=seed, coverage=coverage)))
 
 
@@ -325,11 +378,11 @@ def object_coverage(scene, *, spp: int = 256, seed: int = 0, variant: str | None
 _TAG = {
     "null": "bsdf", "dielectric": "bsdf", "roughdielectric": "bsdf", "diffuse": "bsdf",
     "homogeneous": "medium", "hg": "phase",
-    "point": "emitter", "directional": "emitter", "spot": "emitter", "area": "emitter",
-    "ply": "shape", "perspective": "sensor", "hdrfilm": "film", "independent": "sampler", "box": "rfilter",
+    "point": "emitter", "directional": "emitter", "spot": "emitter", "area": "emitter", "envmap": "emitter",
+    "constant": "emitter", "ply": "shape", "sphere": "shape", "rectangle": "shape", "perspective": "sensor", "hdrfilm": "film", "independent": "sampler", "box": "rfilter",
     "volpathmis": "integrator", "direct": "integrator",
 }
-_POINT_KEYS = {"position": "point", "direction": "vector"}
+_POINT_KEYS = {"position": "point", "direction": "vector", "center": "point"}
 
 
 def _num(v: float) -> str:
@@ -341,6 +394,9 @@ def _xml_value(key: str, value, indent: str) -> list[str]:
     if isinstance(value, LookAt):
         lookat = " ".join(f'{k}="{", ".join(_num(x) for x in getattr(value, k))}"' for k in ("origin", "target", "up"))
         return [f"{indent}<transform name={name}>", f"{indent}    <lookat {lookat}/>", f"{indent}</transform>"]
+    if isinstance(value, Matrix):
+        return [f"{indent}<transform name={name}>",
+                f'{indent}    <matrix value="{" ".join(_num(x) for x in value.values)}"/>', f"{indent}</transform>"]
     if isinstance(value, dict) and value.get("type") == "rgb":
         return [f'{indent}<rgb name={name} value="{", ".join(_num(x) for x in value["value"])}"/>']
     if isinstance(value, dict):
@@ -393,7 +449,8 @@ def write_scene(scene, out_dir, *, spp: int = DEFAULT_SPP, seed: int = 0, name: 
     """
     out_dir = Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
-    files = write_meshes(scene, out_dir, relative=True)
+    check_exportable(scene, "mitsuba")
+    files = _write_files(scene, out_dir, relative=True)
     d = scene_dict(scene, files, spp=spp, seed=seed)
     src = scene.path or "a jaxsss Scene"
     comment = (f"exported by jaxsss from {src}: lengths in mm, coefficients in 1/mm, radiance in W/(mm^2 sr); "

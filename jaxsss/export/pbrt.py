@@ -21,14 +21,24 @@ Other conventions:
   (``coneangle = cone_deg``, ``conedelta = falloff_deg``; pbrt-v4's falloff is a smoothstep in cos(theta), jaxsss's
   a smoothstep in theta: they agree inside the beam and outside the cone). pbrt-v4 divides an RGB light's spectrum by
   the luminance of its illuminant, so ``rgb I [1 1 1]`` renders as RGB 1 on its film.
+- Area lights: ``AreaLightSource "diffuse"`` (``L`` = the radiance, one-sided) on a ``sphere`` (``Translate`` to its
+  centre) or on a two-triangle ``trianglemesh`` whose per-vertex ``normal N`` is the light's ``direction`` (pbrt-v4
+  turns the geometric normal to the shading normal, and a one-sided diffuse area light emits on that side), with a
+  black ``diffuse`` material. As in Mitsuba, pbrt's emitting shapes are visible and block light; jaxsss's are not.
+- Environment: a constant one is ``LightSource "infinite" "rgb L"``; a map is ``LightSource "infinite" "string
+  filename" "environment.exr"``: pbrt-v4 reads only square equal-area octahedral maps, so the export resamples the
+  lat-long map (jaxsss's bilinear lookup, its rotation and ``scale`` baked in) at the pixel centres of pbrt-v4's
+  ``EqualAreaSquareToSphere`` (:func:`jaxsss.export.support.equal_area_directions`), in world coordinates (the light
+  is declared with the identity transform after ``WorldBegin``). Not rendered here: pbrt-v4's normalisation of image
+  lights by the illuminant is assumed to match that of its RGB ``L`` (RGB 1 renders as RGB 1).
 - pbrt-v4 renders spectrally: RGB coefficients become smooth spectra (``RGBUnboundedSpectrum``), so colours are close
   to but not exactly those of an RGB renderer.
 - Specular roughness: ``roughness = specular_roughness`` (GGX alpha) with ``remaproughness false``; none -> 0 (a
   smooth dielectric boundary, as in jaxsss without a highlight).
 - Occluders: ``diffuse`` with ``reflectance = albedo``.
 
-Refused (:func:`jaxsss.export.support.check_exportable`): blockers, layer textures, material textures, environment
-maps, a non-black background.
+Refused (:func:`jaxsss.export.support.check_exportable`): blockers, layer textures, material textures, a non-black
+background.
 """
 
 from __future__ import annotations
@@ -39,7 +49,7 @@ from pathlib import Path
 import numpy as np
 
 from jaxsss.export.ply import OBJECT_ID, write_meshes
-from jaxsss.export.support import check_exportable, medium_arrays
+from jaxsss.export.support import ENVIRONMENT_ID, check_exportable, medium_arrays, write_environment
 
 __all__ = ["DEFAULT_SPP", "MAX_DEPTH", "pbrt_fov", "scene_text", "write_scene"]
 
@@ -64,7 +74,29 @@ def pbrt_fov(fov_deg: float, width: int, height: int) -> float:
     return math.degrees(2.0 * math.atan(math.tan(math.radians(fov_deg) / 2.0) * width / height))
 
 
-def _light(light) -> str:
+def _area_light(light) -> str:
+    emit = f'  AreaLightSource "diffuse" {_rgb("L", light.intensity)}\n  Material "diffuse" {_rgb("reflectance", 0.0)}'
+    if light.kind == "sphere":
+        return (f"AttributeBegin\n  Translate {_nums(light.position)}\n{emit}\n"
+                f'  Shape "sphere" "float radius" [ {float(light.radius)!r} ]\nAttributeEnd')
+    n, e_v = np.asarray(light.direction, dtype=np.float64), np.asarray(light.up, dtype=np.float64)
+    e_u = np.cross(e_v, n)
+    half_w, half_h = (float(v) / 2.0 for v in light.size)
+    c = np.asarray(light.position, dtype=np.float64)
+    corners = [c + a * half_w * e_u + b * half_h * e_v for a, b in ((-1, -1), (1, -1), (1, 1), (-1, 1))]
+    return (f"AttributeBegin\n{emit}\n"
+            f'  Shape "trianglemesh" "integer indices" [ 0 1 2 0 2 3 ] "point3 P" [ {_nums(corners)} ] '
+            f'"normal N" [ {_nums(np.tile(n, 4))} ]\nAttributeEnd')
+
+
+def _light(light, mesh_files: dict | None = None) -> str:
+    if light.kind in ("sphere", "rectangle"):
+        return _area_light(light)
+    if light.kind == "environment":
+        env = light.environment
+        if env.path is None:
+            return f'LightSource "infinite" {_rgb("L", env.image[0, 0] * np.asarray(light.intensity))}'
+        return f'LightSource "infinite" "string filename" [ "{(mesh_files or {})[ENVIRONMENT_ID]}" ]'
     if light.kind == "point":
         return f'LightSource "point" "point3 from" [ {_nums(light.position)} ] {_rgb("I", light.intensity)}'
     if light.kind == "directional":
@@ -75,11 +107,13 @@ def _light(light) -> str:
         return (f'LightSource "spot" "point3 from" [ {_nums(light.position)} ] "point3 to" [ {_nums(to)} ] '
                 f'"float coneangle" [ {light.cone_deg!r} ] "float conedelta" [ {light.falloff_deg!r} ] '
                 f'{_rgb("I", light.intensity)}')
-    raise ValueError(f"light type {light.kind!r} cannot be exported; allowed: point, directional, spot")
+    raise ValueError(f"light type {light.kind!r} cannot be exported; allowed: point, directional, spot, sphere, "
+                     "rectangle, environment")
 
 
 def scene_text(scene, mesh_files: dict[str, str], *, spp: int = DEFAULT_SPP, image_name: str = "scene.exr") -> str:
-    """The ``.pbrt`` text; ``mesh_files`` maps ``"object"``, ``"occluder_0"``, ... to PLY file names.
+    """The ``.pbrt`` text; ``mesh_files`` maps ``"object"``, ``"occluder_0"``, ... to PLY file names (and
+    ``"environment"`` to the equal-area EXR of :func:`jaxsss.export.support.write_environment`, when there is a map).
 
     Raises:
         ExportError: a key the export cannot represent.
@@ -107,7 +141,7 @@ def scene_text(scene, mesh_files: dict[str, str], *, spp: int = DEFAULT_SPP, ima
         "WorldBegin",
     ]
     for light in scene.lights:
-        lines.append(_light(light))
+        lines.append(_light(light, mesh_files))
     lines += [
         "AttributeBegin",
         f'  Material "subsurface" {_rgb("sigma_a", m["sigma_a"])} {_rgb("sigma_s", m["sigma_s"])} '
@@ -132,6 +166,9 @@ def write_scene(scene, out_dir, *, spp: int = DEFAULT_SPP, name: str = "scene") 
     out_dir.mkdir(parents=True, exist_ok=True)
     check_exportable(scene, "pbrt-v4")
     files = write_meshes(scene, out_dir, relative=True)
+    env = write_environment(scene, out_dir, mapping="equal_area")
+    if env is not None:
+        files[ENVIRONMENT_ID] = env
     path = out_dir / f"{name}.pbrt"
     path.write_text(scene_text(scene, files, spp=spp, image_name=f"{name}.exr"))
     return path

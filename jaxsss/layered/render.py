@@ -38,6 +38,7 @@ from jaxsss.render.plan import make_plan
 from jaxsss.render.renderer import prepare as prepare_diffusion
 from jaxsss.render.camera import camera_rays
 from jaxsss.render.methods import Preparation, register_method, render
+from jaxsss.render.lights import refuse_lights
 from jaxsss.render.rays import OBJECT_TRANSLUCENT, SceneGeometry
 from jaxsss.render.shading import constant_image, face_the_eye
 
@@ -205,6 +206,8 @@ def prepare_layered(scene, spec: LayerSpec, *, resolution=None, samples: int | N
     Returns:
         ``(prepared, shading_geometry, info)``.
     """
+    refuse_lights(scene, "layered", why="its ray marcher attenuates the light of point, spot and directional lights "
+                  "along one direction per light (jaxsss.layered.lighting)")
     timings: dict[str, float] = {}
     t0 = time.perf_counter()
     geometry = SceneGeometry(scene.mesh, [o.mesh for o in scene.occluders])

@@ -11,6 +11,11 @@ an equal share of the flux the light sends into that sphere:
   it), or in a spot's own cone where that is narrower: power ``I Omega / n`` each, times the spot's angular factor,
   and solid angle ``Omega / n`` (sr).
 
+- an **environment** (radiance ``L(w)`` from every direction) draws each photon's direction from the map's
+  luminance distribution (:meth:`jaxsss.render.environment.EnvironmentMap.sample`) and its start on the disc of
+  radius ``R`` across it (stratified): power ``L(w) / p(w) pi R^2 / n``, cross-section ``pi R^2 / n``. Its flux into
+  the sphere is ``pi R^2 int L dw`` (the map's texels times their solid angles).
+
 The photons of all lights are split in proportion to each light's channel-mean flux into the sphere.
 
 The *area* a photon stands for on the surface (its cross-section over the cosine at the hit, or its solid angle times
@@ -61,6 +66,14 @@ def _frame(axis: np.ndarray):
     return u, np.cross(axis, u)
 
 
+def _frames(axes: np.ndarray):
+    """Per-row :func:`_frame` of ``(n, 3)`` unit axes."""
+    helper = np.where(np.abs(axes[:, :1]) < 0.9, np.array([1.0, 0.0, 0.0]), np.array([0.0, 1.0, 0.0]))
+    u = np.cross(axes, helper)
+    u /= np.linalg.norm(u, axis=1, keepdims=True)
+    return u, np.cross(axes, u)
+
+
 def _jittered_square(n: int, rng: np.random.Generator) -> np.ndarray:
     """``(n, 2)`` stratified points in the unit square: a jittered ``k x k`` grid (``k^2 >= n``), shuffled, first n."""
     k = max(1, math.ceil(math.sqrt(n)))
@@ -100,6 +113,13 @@ def _light_flux(light, centre: np.ndarray, radius: float):
     intensity = np.asarray(light.intensity, dtype=np.float64)
     if light.kind == "directional":
         return intensity * math.pi * radius * radius
+    if light.kind == "environment":
+        env = light.environment
+        h, w = env.shape
+        # Flux through a disc of radius R from every direction: pi R^2 int L dw (texel radiance times solid angle).
+        edges = np.cos(np.pi * np.arange(h + 1) / h)
+        omega = (2.0 * np.pi / w) * (edges[:-1] - edges[1:])
+        return intensity * math.pi * radius * radius * np.einsum("ijc,i->c", env.image, omega)
     _, cos_max = _cone(light, centre, radius)
     return intensity * 2.0 * math.pi * (1.0 - cos_max)
 
@@ -114,6 +134,16 @@ def _emit_one(light, n: int, centre, radius, rng):
         area = math.pi * radius * radius / n
         power = np.broadcast_to(intensity * area, (n, intensity.size))
         return origin, np.broadcast_to(d, (n, 3)), power, np.full(n, area), False
+    if light.kind == "environment":
+        # Direction towards the sky w from the map's distribution; the photon travels along -w from a disc across it.
+        w_dir, pdf = light.environment.sample(np.concatenate([_jittered_square(n, rng), rng.random((n, 1))], axis=1))
+        d = -w_dir
+        u, v = _frames(d)
+        disc = _concentric_disc(_jittered_square(n, rng)[rng.permutation(n)]) * radius
+        origin = centre - 2.0 * radius * d + disc[:, :1] * u + disc[:, 1:] * v
+        area = math.pi * radius * radius / n
+        power = light.environment.radiance(w_dir) * intensity / pdf[:, None] * area
+        return origin, d, power, np.full(n, area), False
     pos = np.asarray(light.position, dtype=np.float64)
     axis, cos_max = _cone(light, centre, radius)
     u, v = _frame(axis)

@@ -40,11 +40,16 @@ from jaxsss.profiles.blend import blended_unchecked
 from jaxsss.profiles.oblique import KAPPA_COEFFICIENTS, kappa_unchecked
 from jaxsss.profiles.point_sources import DEFAULT_N_PAIRS
 from jaxsss.render import radiance as rad
+from jaxsss.render.lights import DELTA_KINDS, refuse_lights
 from jaxsss.render.methods import Preparation, register_method
 from jaxsss.render.pairs import BLOCK_PAIRS, pair_blocks
 from jaxsss.render.plan import PlanItem, make_plan
 from jaxsss.render.rays import SceneGeometry
-from jaxsss.render.shading import ShadedPoints, point_shading, shaded_fields, shading_points
+from jaxsss.render.mirror import ReflectingPoints, mirror_field
+from jaxsss.render.shading import point_shading, shaded_fields, shading_points
+
+PHOTON_LIGHTS = (*DELTA_KINDS, "environment")
+_AREA_REFUSAL = "its photons are emitted from point, spot, directional and environment lights only (jaxsss.photon.emit)"
 
 __all__ = ["DEFAULT_EPS", "PhotonPrepared", "photon_geometry", "prepare_photon", "source_power", "trace_scene"]
 
@@ -69,7 +74,7 @@ def source_power(medium: Medium, power, path, sigma_t_ref):
     return power * medium.alpha_prime * jnp.exp(jnp.log(st) - st * s - log_ref)
 
 
-class PhotonPrepared(ShadedPoints):
+class PhotonPrepared(ReflectingPoints):
     """The photon method's state: shaded points, sources (octree order), entity planes and the two pair lists.
 
     ``S`` sources, ``E`` entities (sources then nodes), ``C`` channels; pair lists in blocks ``(B, K)``.
@@ -145,6 +150,7 @@ def trace_scene(scene, n_photons: int, *, walk: str | None = None, seed: int | N
 
     ``walk`` defaults to ``"sources"`` for a convex mesh (no light re-enters, so a photon is done once it has stored
     its source) and ``"full"`` otherwise (:func:`~jaxsss.photon.trace.trace_photons`)."""
+    refuse_lights(scene, "photon", PHOTON_LIGHTS, why=_AREA_REFUSAL)
     geometry, blockers = photon_geometry(scene)
     sphere = scene.mesh.bounding_sphere.primitive
     seed = scene.render.seed if seed is None else seed
@@ -206,6 +212,7 @@ def prepare_photon(scene, *, n_photons: int | None = None, eps: float | None = N
         ``(prepared, plan, info)``: the :class:`PhotonPrepared`, the :class:`~jaxsss.render.plan.ScenePlan` (method
         ``"photon"``, its own items) and timings (s) and counts.
     """
+    refuse_lights(scene, "photon", PHOTON_LIGHTS, why=_AREA_REFUSAL)
     if kappa not in KAPPA_COEFFICIENTS:
         raise ValueError(f"prepare_photon(kappa={kappa!r}) is not one of: {', '.join(KAPPA_COEFFICIENTS)}")
     n_photons = scene.render.photons if n_photons is None else n_photons
@@ -260,6 +267,7 @@ def prepare_photon(scene, *, n_photons: int | None = None, eps: float | None = N
         pair_entity=tuple(b[1] for b in blocks),
         n_pairs=int(n_pairs),
         kappa=kappa,
+        mirror=mirror_field(scene, shading) if points is None else None,
     )
     counts = np.bincount(np.concatenate(pairs.query), minlength=n_q) if n_q else np.zeros(0, int)
     info = {

@@ -388,7 +388,7 @@ def prepare_cached(scene, error_bound: float, *, eps: float | None = None, resol
     cache_shading = shading.subset(placement.cache_point)
     pairs = pair_lists(tree, samples, cache_shading.pos, geo.plan, progress=progress)
     timings["interactions"] = time.perf_counter() - t0
-    cache = assemble_prepared(scene, geo.plan, samples, tree, cache_shading, pairs)
+    cache = assemble_prepared(scene, geo.plan, samples, tree, cache_shading, pairs, mirror=False)
     points = assemble_prepared(scene, geo.plan, samples, tree, shading, None)
     offset = shading.pos[placement.pair_point] - shading.pos[placement.cache_point[placement.pair_cache]]
     cached = CachedPrepared(cache, points, jnp.asarray(placement.pair_point), jnp.asarray(placement.pair_cache),

@@ -27,12 +27,13 @@ from jaxsss.render.octree import build_octree
 from jaxsss.render.pairs import BLOCK_PAIRS, PairLists, near_radius, pair_info, pair_lists
 from jaxsss.render.plan import ScenePlan, make_plan
 from jaxsss.render.rays import SceneGeometry
+from jaxsss.render.mirror import ReflectingPoints, mirror_field
 from jaxsss.render.samples import irradiance_samples
-from jaxsss.render.shading import ShadedPoints, ShadingPoints, point_shading, shaded_fields, shading_points
+from jaxsss.render.shading import ShadingPoints, point_shading, shaded_fields, shading_points
 
 __all__ = ["Prepared", "assemble_prepared", "irradiance_pass", "prepare"]
 
-class Prepared(ShadedPoints):
+class Prepared(ReflectingPoints):
     """Everything an image needs except the material. Arrays are sorted for the sums; see :func:`prepare`.
 
     ``Q`` shaded points (camera-ray hits on the translucent object), ``N`` samples in octree order, ``E`` octree
@@ -131,9 +132,12 @@ def irradiance_pass(scene, plan: ScenePlan):
     return geometry, samples, tree, time.perf_counter() - t0
 
 
-def assemble_prepared(scene, plan: ScenePlan, samples, tree, shading: ShadingPoints, pairs: PairLists | None) -> Prepared:
+def assemble_prepared(scene, plan: ScenePlan, samples, tree, shading: ShadingPoints, pairs: PairLists | None,
+                      geometry=None, mirror: bool = True) -> Prepared:
     """The :class:`Prepared` state from pass 1 (``samples``, ``tree``), the shaded points and their pair lists
-    (``None``: no lists, for radiance and image assembly only)."""
+    (``None``: no lists, for radiance and image assembly only). ``mirror``: add the mirror image of area and
+    environment lights when the boundary is smooth (``geometry`` shadows it; built here when ``None``)."""
+    reflect = mirror_field(scene, shading, geometry) if mirror else None
     def opt(a):
         return None if a is None else jnp.asarray(a)
 
@@ -157,6 +161,7 @@ def assemble_prepared(scene, plan: ScenePlan, samples, tree, shading: ShadingPoi
         rho0=jnp.asarray(pairs.rho0),
         method=plan.method,
         shared_channel=plan.shared_channel,
+        mirror=reflect,
     )
 
 
@@ -212,7 +217,7 @@ def prepare(scene, *, method: str | None = None, eps: float | None = None, resol
     bar.update()
     bar.close()
 
-    prepared = assemble_prepared(scene, plan, samples, tree, shading, pairs)
+    prepared = assemble_prepared(scene, plan, samples, tree, shading, pairs, geometry, mirror=points is None)
     info = {
         "timings": timings,
         "seconds_geometry": time.perf_counter() - t_all,

@@ -25,7 +25,7 @@ from typing import NamedTuple
 import numpy as np
 import trimesh
 
-from jaxsss.render.lights import LightField, light_field
+from jaxsss.render.lights import LightField, capped_samples, light_field
 from jaxsss.render.octree import MORTON_BITS, morton_codes
 
 __all__ = [
@@ -80,6 +80,8 @@ def sample_count(area: float, l_u: float, density: float = 1.0, max_samples: int
 
 
 _GOLDEN = (math.sqrt(5.0) - 1.0) / 2.0
+INDIRECT_LIGHT_SAMPLES = 4
+"""Samples of an area or environment light at each occluder hit of the indirect bounce."""
 
 
 def _stratified(mesh: trimesh.Trimesh, n: int, rng: np.random.Generator):
@@ -166,7 +168,9 @@ def indirect_irradiance(scene, geometry, points, normals, *, n_rays: int = 16, s
     """One-bounce diffuse irradiance off the scene's opaque (Lambertian) occluders, ``(P, C)`` W/mm^2.
 
     Cosine-weighted rays: ``E = pi * mean(L)``, with ``L = albedo / pi * E_direct(y)`` at an occluder hit ``y``.
-    Rays that hit the translucent object itself or nothing add zero (self inter-reflection is not modelled).
+    Rays that hit the translucent object itself or nothing add zero (self inter-reflection is not modelled). Area and
+    environment lights are sampled with at most :data:`INDIRECT_LIGHT_SAMPLES` directions at each occluder hit (the
+    ``n_rays`` hits per point already average them).
     """
     rng = np.random.default_rng(seed)
     dirs = _cosine_directions(normals, n_rays, rng).reshape(-1, 3)
@@ -180,7 +184,8 @@ def indirect_irradiance(scene, geometry, points, normals, *, n_rays: int = 16, s
         y = hits.position[idx]
         ny = geometry.combined.face_normals[hits.face[idx]]
         ny = np.where(np.einsum("ij,ij->i", ny, dirs[idx])[:, None] > 0, -ny, ny)  # face the incoming ray
-        direct = light_field(scene.lights, y, ny, geometry).irradiance.sum(axis=1)
+        direct = light_field(capped_samples(scene.lights, INDIRECT_LIGHT_SAMPLES), y, ny, geometry,
+                             seed=seed + 1).irradiance.sum(axis=1)
         albedo = np.stack([scene.occluders[k - 1].albedo for k in hits.obj[idx]])
         radiance[idx] = albedo / np.pi * direct
     return np.pi * radiance.reshape(len(points), n_rays, n_c).mean(axis=1)
@@ -199,7 +204,7 @@ def irradiance_samples(scene, geometry, n: int, *, shadows: bool, indirect: bool
     """
     positions, face, areas = sample_surface(scene.mesh, n, seed)
     normals = geometry.shading_normals(face, positions)
-    light = light_field(scene.lights, positions, normals, geometry if shadows else None)
+    light = light_field(scene.lights, positions, normals, geometry if shadows else None, seed=seed + 2)
     ind = indirect_irradiance(scene, geometry, positions, normals, n_rays=indirect_rays, seed=seed + 1) \
         if indirect else None
     tex = None

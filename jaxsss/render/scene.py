@@ -32,14 +32,24 @@ Schema (units: mm, 1/mm, degrees; "3 values" means ``[x, y, z]`` or ``[r, g, b]`
     texture = "face.png"      # optional 8-bit (or 16-bit grey) sRGB image; decoded to a linear multiplier
     specular_roughness = 0.3  # optional GGX alpha in (0, 1]; absent = no specular highlight
 
-    [[light]]                 # at least one; light[i] in messages counts from 0 in file order
+    [[light]]                 # at least one (or an [environment]); light[i] in messages counts from 0 in file order
     type = "point"            # point (position) | directional (direction) | spot (position, direction, cone_deg)
+                              # | sphere (position, radius, radiance) | rectangle (position, direction, size,
+                              # radiance): area lights (jaxsss.render.lights)
     position = [x, y, z]      # mm
     direction = [x, y, z]     # the direction the light travels (spot: the cone axis); normalised; not zero
     intensity = 1.0e4         # >= 0, one number or 3 values: W/sr (point, spot) or W/mm^2 (directional,
                               # irradiance on a surface facing the light)
     cone_deg = 30.0           # spot: half-angle where the intensity reaches zero, in (0, 180]
     falloff_deg = 5.0         # spot: smoothstep width inside cone_deg, in [0, cone_deg] (default 0)
+    radiance = 2.0            # sphere, rectangle: emitted radiance W/(mm^2 sr), >= 0, one number or 3 values
+    radius = 5.0              # sphere: mm, > 0 (position is its centre)
+    size = [20.0, 10.0]       # rectangle: [width, height] in mm, > 0; position is its centre, direction the normal
+                              # of its emitting (front) side
+    up = [0, 0, 1]            # rectangle: the direction of its height edge (orthogonalised against direction; width
+                              # runs along up x direction, as Mitsuba's look_at); default z, or y if direction is
+                              # within 25 degrees of z
+    samples = 16              # sphere, rectangle: shadow rays per surface point in pass 1, >= 1
 
     [camera]
     position = [...]          # mm (required)
@@ -73,7 +83,16 @@ Schema (units: mm, 1/mm, degrees; "3 values" means ``[x, y, z]`` or ``[r, g, b]`
     exposure = 1.0            # > 0, linear scale before sRGB encoding
     background = [0, 0, 0]    # linear radiance of pixels that miss everything, >= 0
 
-    environment = "sky.hdr"   # optional top-level key: an HDR environment map (checked to exist; not used yet)
+    environment = "sky.hdr"   # optional top-level key: shorthand for [environment] file = "sky.hdr"
+
+    [environment]             # optional: light from infinitely far away (jaxsss.render.environment has the
+                              # lat-long orientation, Mitsuba's envmap)
+    file = "sky.hdr"          # lat-long radiance map W/(mm^2 sr): .hdr, .exr or .npy (H, W, 3); or instead:
+    radiance = [1, 1, 1]      # a constant environment, W/(mm^2 sr), >= 0
+    scale = 1.0               # multiplier, >= 0, one number or 3 values
+    rotate_deg = [90, 0, 0]   # the map's to_world rotation about x, then y, then z (default [0, 0, 0]: the map's
+                              # top row is +y; [90, 0, 0] puts it at +z)
+    samples = 64              # directions per surface point in pass 1 (importance-sampled, shadow rays), >= 1
 
     [layers]                  # optional: subsurface texture layers for `--method layered` (schema in
                               # jaxsss.layered.config, which registers the section; Scene.layers, a LayerSpec)
@@ -131,7 +150,9 @@ __all__ = [
 ]
 
 DEFAULT_ETA = 1.3
-LIGHT_KINDS = ("point", "directional", "spot")
+LIGHT_KINDS = ("point", "directional", "spot", "sphere", "rectangle")
+AREA_LIGHT_SAMPLES = 16
+ENVIRONMENT_SAMPLES = 64
 SWITCH_VALUES = ("auto", "on", "off")
 
 
@@ -158,15 +179,23 @@ def _frozen(a) -> np.ndarray:
 
 @dataclass(frozen=True, eq=False)
 class Light:
-    """One light. ``kind`` is ``"point"``, ``"directional"`` or ``"spot"``.
+    """One light. ``kind`` is ``"point"``, ``"directional"``, ``"spot"``, ``"sphere"``, ``"rectangle"`` or
+    ``"environment"`` (the scene's ``[environment]``, appended after the ``[[light]]`` tables).
 
     Attributes:
-        intensity: ``(3,)`` RGB; radiant intensity W/sr (point, spot) or irradiance W/mm^2 on a surface facing the
-            light (directional).
-        position: ``(3,)`` mm (point, spot), else ``None``.
-        direction: ``(3,)`` unit vector the light travels along (directional; spot: the cone axis), else ``None``.
+        intensity: ``(3,)`` RGB; radiant intensity W/sr (point, spot), irradiance W/mm^2 on a surface facing the
+            light (directional), emitted radiance W/(mm^2 sr) (sphere, rectangle), or the environment's ``scale``.
+        position: ``(3,)`` mm (point, spot; sphere and rectangle: the centre), else ``None``.
+        direction: ``(3,)`` unit vector the light travels along (directional; spot: the cone axis; rectangle: the
+            normal of its emitting side), else ``None``.
         cone_deg: spot: the half-angle where the intensity reaches zero.
         falloff_deg: spot: full intensity inside ``cone_deg - falloff_deg``, smoothstep to zero at ``cone_deg``.
+        radius: sphere: mm.
+        size: rectangle: ``(width, height)`` mm.
+        up: rectangle: ``(3,)`` unit direction of the height edge, orthogonal to ``direction``.
+        samples: sphere, rectangle, environment: samples per surface point in pass 1.
+        environment: environment: the :class:`~jaxsss.render.environment.EnvironmentMap`.
+        key: the scene key that made it (``"light[0]"``, ``"environment"``), for messages.
     """
 
     kind: str
@@ -175,6 +204,12 @@ class Light:
     direction: np.ndarray | None = None
     cone_deg: float = 180.0
     falloff_deg: float = 0.0
+    radius: float = 0.0
+    size: tuple[float, float] | None = None
+    up: np.ndarray | None = None
+    samples: int = 0
+    environment: Any = None
+    key: str = ""
 
 
 @dataclass(frozen=True, eq=False)
@@ -265,7 +300,7 @@ class Scene:
     blockers: tuple[Blocker, ...] = ()
     render: RenderSettings = field(default_factory=RenderSettings)
     output: Output = field(default_factory=Output)
-    environment: str | None = None
+    environment: str | None = None  # the environment map's file (None: none, or a constant [environment].radiance)
     sections: dict = field(default_factory=dict)  # registered sections' values (register_section), by name
 
     @property
@@ -524,7 +559,10 @@ _LIGHT_KEYS = {
     "point": ("type", "intensity", "position"),
     "directional": ("type", "intensity", "direction"),
     "spot": ("type", "intensity", "position", "direction", "cone_deg", "falloff_deg"),
+    "sphere": ("type", "radiance", "position", "radius", "samples"),
+    "rectangle": ("type", "radiance", "position", "direction", "size", "up", "samples"),
 }
+_OPTIONAL_LIGHT_KEYS = ("falloff_deg", "samples", "up")
 _ALL_LIGHT_KEYS = {k for keys in _LIGHT_KEYS.values() for k in keys}
 
 
@@ -539,11 +577,12 @@ def _parse_light(ctx: SceneKeys, table, key: str) -> Light:
     for k in table:
         if k not in allowed:
             raise ctx.error(f"{key}.{k}", f"not used by a {kind} light; allowed for {kind}: {', '.join(allowed)}")
-    required = [k for k in allowed if k not in ("falloff_deg",)]
+    required = [k for k in allowed if k not in _OPTIONAL_LIGHT_KEYS]
     for k in required:
         if k not in table:
             raise ctx.error(f"{key}.{k}", f"missing; a {kind} light needs {', '.join(required[1:])}")
-    intensity = ctx.vector(table["intensity"], f"{key}.intensity", scalar_ok=True, lo=0.0)
+    power = "radiance" if "radiance" in allowed else "intensity"
+    intensity = ctx.vector(table[power], f"{key}.{power}", scalar_ok=True, lo=0.0)
     position = ctx.vector(table["position"], f"{key}.position") if "position" in table else None
     direction = None
     if "direction" in table:
@@ -556,7 +595,58 @@ def _parse_light(ctx: SceneKeys, table, key: str) -> Light:
     if kind == "spot":
         cone_deg = ctx.number(table["cone_deg"], f"{key}.cone_deg", 0.0, 180.0, lo_open=True)
         falloff_deg = ctx.number(table.get("falloff_deg", 0.0), f"{key}.falloff_deg", 0.0, cone_deg)
-    return Light(kind, intensity, position, direction, cone_deg, falloff_deg)
+    if kind not in ("sphere", "rectangle"):
+        return Light(kind, intensity, position, direction, cone_deg, falloff_deg, key=key)
+    samples = ctx.integer(table.get("samples", AREA_LIGHT_SAMPLES), f"{key}.samples", 1)
+    if kind == "sphere":
+        radius = ctx.number(table["radius"], f"{key}.radius", 0.0, lo_open=True)
+        return Light(kind, intensity, position, radius=radius, samples=samples, key=key)
+    size = table["size"]
+    if not isinstance(size, (list, tuple)) or len(size) != 2:
+        raise ctx.error(f"{key}.size", f"{size!r} is not [width, height]")
+    size = tuple(ctx.number(v, f"{key}.size", 0.0, lo_open=True, where=f" (element {i})") for i, v in enumerate(size))
+    if "up" in table:
+        up = ctx.vector(table["up"], f"{key}.up")
+    else:  # z, or y when the normal is within about 25 degrees of z
+        up = np.array([0.0, 0.0, 1.0]) if abs(direction[2]) < 0.9 else np.array([0.0, 1.0, 0.0])
+    # Orthogonalise against the normal (Mitsuba's look_at): up' = up - (up . n) n.
+    up = up - float(up @ direction) * direction
+    norm = float(np.linalg.norm(up))
+    if norm < 1e-6:
+        raise ctx.error(f"{key}.up", f"{_fmt(list(table['up']))} is parallel to direction; it must fix the "
+                        "rectangle's height edge")
+    return Light(kind, intensity, position, direction, radius=0.0, size=size, up=_frozen(up / norm),
+                 samples=samples, key=key)
+
+
+_ENVIRONMENT_KEYS = ("file", "radiance", "scale", "rotate_deg", "samples")
+
+
+def _parse_environment(ctx: SceneKeys, value) -> tuple[Light, str | None]:
+    """``[environment]`` (or ``environment = "file"``) -> ``(Light(kind="environment"), file or None)``."""
+    from jaxsss.render.environment import EnvironmentMap, load_environment_image
+
+    key = "environment"
+    table = {"file": value} if isinstance(value, str) else value
+    if not isinstance(table, dict):
+        raise ctx.error(key, f"{value!r} is neither a file name nor a table [environment]")
+    ctx.only_keys(table, key, _ENVIRONMENT_KEYS)
+    if ("file" in table) == ("radiance" in table):
+        raise ctx.error(key, "give exactly one of: file (a lat-long map) | radiance (a constant environment)")
+    path = None
+    if "file" in table:
+        path = ctx.file(table["file"], f"{key}.file")
+        try:
+            image = load_environment_image(path)
+        except ValueError as err:
+            raise ctx.error(f"{key}.file", str(err)) from None
+    else:
+        image = np.asarray(ctx.vector(table["radiance"], f"{key}.radiance", scalar_ok=True, lo=0.0)).reshape(1, 1, 3)
+    scale = ctx.vector(table.get("scale", 1.0), f"{key}.scale", scalar_ok=True, lo=0.0)
+    rotate = ctx.vector(table.get("rotate_deg", [0.0, 0.0, 0.0]), f"{key}.rotate_deg")
+    samples = ctx.integer(table.get("samples", ENVIRONMENT_SAMPLES), f"{key}.samples", 1)
+    env = EnvironmentMap.build(image, transform_matrix(rotate_deg=rotate)[:3, :3], None if path is None else str(path))
+    return Light("environment", scale, samples=samples, environment=env, key=key), None if path is None else str(path)
 
 
 _CAMERA_KEYS = ("position", "look_at", "up", "fov_deg", "resolution", "spp")
@@ -691,9 +781,13 @@ def parse_scene(data: dict, *, path: str = "<scene>", base_dir=None) -> Scene:
     mesh, description = _parse_mesh(ctx, ctx.table(data, "mesh", "mesh"), "mesh")
     material = _parse_material(ctx, ctx.table(data, "material", "material"))
     lights = _array_of_tables(ctx, data, "light")
-    if not lights:
-        raise ctx.error("light", "missing: give at least one [[light]]")
+    if not lights and "environment" not in data:
+        raise ctx.error("light", "missing: give at least one [[light]] or an [environment]")
     lights = tuple(_parse_light(ctx, t, f"light[{i}]") for i, t in enumerate(lights))
+    environment = None
+    if "environment" in data:
+        env_light, environment = _parse_environment(ctx, data["environment"])
+        lights = (*lights, env_light)
     camera = _parse_camera(ctx, ctx.table(data, "camera", "camera"))
     occluders = tuple(
         _parse_occluder(ctx, t, f"occluder[{i}]") for i, t in enumerate(_array_of_tables(ctx, data, "occluder"))
@@ -703,7 +797,6 @@ def parse_scene(data: dict, *, path: str = "<scene>", base_dir=None) -> Scene:
     )
     render = _parse_render(ctx, ctx.table(data, "render", "render")) if "render" in data else RenderSettings()
     output = _parse_output(ctx, ctx.table(data, "output", "output")) if "output" in data else Output()
-    environment = str(ctx.file(data["environment"], "environment")) if "environment" in data else None
     extra = {name: parse(data[name], ctx) for name, parse in sections.items() if name in data}
     return Scene(
         path=None if path == "<scene>" else str(path),

@@ -243,7 +243,7 @@ ERROR_CASES = [
     ("blocker-no-mesh", _replace("blocker", [{}]), "blocker[0]", "exactly one"),
     ("blocker-albedo", _replace("blocker", [{"builtin": "box", "albedo": 0.5}]), "blocker[0].albedo", "unknown key"),
     ("photons", _replace("render", {"photons": 0}), "render.photons", "[1, inf)"),
-    ("environment-missing", _replace("environment", "sky.hdr"), "environment", "does not exist"),
+    ("environment-missing", _replace("environment", "sky.hdr"), "environment.file", "does not exist"),
     ("section-not-table", _replace("camera", [1, 2]), "camera", "table"),
 ]
 
@@ -332,9 +332,16 @@ def test_texture_is_decoded_to_linear(tmp_path):
 
 
 def test_environment_path_is_resolved(tmp_path):
-    (tmp_path / "sky.hdr").write_bytes(b"#?RADIANCE\n")
+    import imagecodecs
+
+    (tmp_path / "sky.hdr").write_bytes(imagecodecs.rgbe_encode(np.ones((2, 4, 3), np.float32)))
     scene = parse_scene(_with(_replace("environment", "sky.hdr")), base_dir=tmp_path)
     assert scene.environment == str(tmp_path / "sky.hdr")
+    assert scene.lights[-1].kind == "environment" and scene.lights[-1].environment.path == scene.environment
+    (tmp_path / "bad.hdr").write_bytes(b"#?RADIANCE\n")
+    with pytest.raises(SceneError, match="could not be read") as err:
+        parse_scene(_with(_replace("environment", "bad.hdr")), base_dir=tmp_path)
+    assert err.value.key == "environment.file"
 
 
 def test_blockers_are_parsed_and_noted_by_the_plan():
