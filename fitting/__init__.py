@@ -15,6 +15,7 @@ This package is installed with ``jaxsss`` and imports only its public API (``imp
 - I/O: :func:`read_profile_csv`, :func:`load_profile_npy`, :func:`read_profile` -> :class:`ProfileData`;
   :func:`read_mco` reads MCML 1.2.2's ``.mco`` output (:class:`McoRun`, in mm; ``read_profile`` dispatches ``.mco``);
   :func:`fit_mco` fits such a run as it stands (transport-accurate: white MC or replay Monte Carlo);
+  :func:`fit_free_g` fits ``g`` too, from near-source data of a half-space (white-MC family);
   :func:`fit_mc_slab` fits a slab's profile file by replay Monte Carlo (``jaxsss fit --model mc --thickness``).
 
 The Rd -> alpha' inversion and the (Rd, l_d) reparameterisation are closed-form physics and live in
@@ -32,6 +33,7 @@ _LAZY = {
     "McoLayer": "fitting.mco", "McoRun": "fitting.mco", "read_mco": "fitting.mco",
     "MCO_MODELS": "fitting.mco_fit", "McoFit": "fitting.mco_fit", "fit_mco": "fitting.mco_fit",
     "fit_mc_slab": "fitting.mco_fit",
+    "FreeGFit": "fitting.g_fit", "fit_free_g": "fitting.g_fit",
     "FORWARD_MODELS": "fitting.models", "ForwardModel": "fitting.models", "entry_transmittance": "fitting.models",
     "register_model": "fitting.models", "resolve_model": "fitting.models",
     "ReplayData": "fitting.replay_fit", "ReplayFit": "fitting.replay_fit", "fit_replay": "fitting.replay_fit",
@@ -64,6 +66,7 @@ def __dir__():
 
 __all__ = [
     "MCO_MODELS",
+    "FreeGFit",
     "McoFit",
     "COLUMNS",
     "CONDITION_LIMIT",
@@ -89,6 +92,7 @@ __all__ = [
     "fit_jacobian_wrt_data",
     "fit_profile",
     "fit_profiles",
+    "fit_free_g",
     "fit_mc_slab",
     "fit_mco",
     "fit_replay",

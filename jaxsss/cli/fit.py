@@ -64,6 +64,9 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
                    "[1, 1.6])")
     p.add_argument("--relative", action="store_true", help="the profile has an unknown scale (fitted)")
     p.add_argument("--free-eta", action="store_true", help="also fit eta (usually fixed)")
+    p.add_argument("--free-g", action="store_true",
+                   help="also fit the anisotropy g (--model mc, half-space; g in [0, 0.95]): near-source data with "
+                   "standard errors carry it, the far field does not (the result says when g is not constrained)")
     p.add_argument("--r-min", type=number, metavar="R", help="smallest radius fitted, mm (default: l_u at the guess)")
     p.add_argument("--r-max", type=number, metavar="R", help="largest radius fitted, mm (default: all)")
     p.add_argument("--solver", choices=list(SOLVERS), default="levenberg_marquardt", help="least-squares solver")
@@ -132,13 +135,13 @@ def _plot(path, data, fit):
 
 # Options a .mco run decides itself (the file's layers, indices and photon count), and options only a .mco run takes;
 # a given option is one that differs from the parser's default (recorded by add_parser as ``args.defaults``).
-_MCO_DECIDES = ("eta", "thickness", "g", "relative", "free_eta", "r_min", "r_max", "solver", "max_steps", "fresnel",
+_MCO_DECIDES = ("eta", "thickness", "g", "relative", "free_eta", "free_g", "r_min", "r_max", "solver", "max_steps", "fresnel",
                 "plot")
 _MCO_ONLY = ("free_layers", "photons", "seed")
 
 
 # A slab profile with --model mc is fitted by replay Monte Carlo (fitting.fit_mc_slab): these options do not apply.
-_SLAB_MC_REFUSES = ("relative", "free_eta", "r_min", "r_max", "solver", "max_steps", "fresnel", "plot")
+_SLAB_MC_REFUSES = ("relative", "free_eta", "free_g", "r_min", "r_max", "solver", "max_steps", "fresnel", "plot")
 _SLAB_MC_TAKES = ("photons", "seed")
 
 
@@ -156,6 +159,33 @@ def _run_mc_slab(args, data) -> int:
     fit = fit_mc_slab(data, eta=args.eta, g=args.g, thickness=args.thickness, photons=args.photons or 100_000,
                       seed=args.seed)
     return _print_layer_fit(args, fit, f"slab {args.thickness:g} mm, eta {args.eta:g}, g {args.g:g}")
+
+
+_FREE_G_REFUSES = ("g", "relative", "free_eta", "solver", "fresnel", "plot")
+
+
+def _run_free_g(args, data) -> int:
+    from fitting import fit_free_g
+
+    if args.model != "mc":
+        raise CLIError(f"--free-g needs --model mc (the white Monte Carlo family is smooth in g); got {args.model}")
+    for name in _FREE_G_REFUSES:
+        if getattr(args, name) != args.defaults.get(name, None):
+            raise CLIError(f"{_flag(name)} does not apply with --free-g")
+    fit = fit_free_g(data, eta=args.eta, r_min=args.r_min, r_max=args.r_max, max_steps=args.max_steps)
+    if args.json:
+        print_json({**fit.to_dict(), "model": "mc", "file": data.source})
+    else:
+        print(f"{data.source}: {len(data.r)} radii; model mc with free g, {fit.n_points} points in "
+              f"[{fit.r_min:g}, {fit.r_max:g}] mm, {'converged' if fit.converged else 'NOT CONVERGED'}, "
+              f"reduced chi^2 {fit.reduced_chi2:.3g}, {fit.seconds:.1f} s")
+        print(format_table(["sigma_a (1/mm)", "sigma_s' (1/mm)", "g", "g constrained"],
+                           [[f"{fit.sigma_a:.5g} +- {fit.sigma_a_stderr:.2g}",
+                             f"{fit.sigma_s_prime:.5g} +- {fit.sigma_s_prime_stderr:.2g}",
+                             f"{fit.g:.4f} +- {fit.g_stderr:.2g}", "yes" if fit.identifiable else "NO"]]))
+    for text in fit.warnings:
+        print(f"jaxsss: warning: {' '.join(text.split())}", file=sys.stderr)
+    return 0 if fit.converged else 1
 
 
 def _flag(name: str) -> str:
@@ -223,6 +253,8 @@ def run(args) -> int:
     data = read_profile(args.profile)
     if args.model == "mc" and args.thickness is not None:
         return _run_mc_slab(args, data)
+    if args.free_g:
+        return _run_free_g(args, data)
     # warn=False: the fit's warnings (fit.warnings) are printed below as one line each.
     fit = fit_profile(data, eta=args.eta, model=args.model, thickness=args.thickness, relative=args.relative,
                       free_eta=args.free_eta, r_min=args.r_min, r_max=args.r_max, solver=args.solver,
