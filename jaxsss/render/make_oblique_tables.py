@@ -4,7 +4,8 @@
 :func:`jaxsss.mc.white.generate_white_table` at the incidence cosines ``MU`` (in air) and writes each table to
 ``jaxsss/render/data/oblique_mu<MU>/`` under the usual white-table name, so that
 :func:`jaxsss.mc.white.load_white_table` reads it with ``directory=``. Normal incidence (``mu = 1``) is the shipped
-``jaxsss/mc/data`` table. ``--list`` prints what is there. See :mod:`jaxsss.render.bssrdf`.
+``jaxsss/mc/data`` table. ``--list`` prints what is there. ``--shifts`` measures the forward shift of oblique
+profiles (:data:`jaxsss.render.bssrdf.SHIFT_RATIO`) and prints the table. See :mod:`jaxsss.render.bssrdf`.
 """
 
 from __future__ import annotations
@@ -15,11 +16,34 @@ import sys
 import time
 
 from jaxsss.mc.white import GENERATION, _seed, generate_white_table, save, table_info
-from jaxsss.render.bssrdf import OBLIQUE_DIR, OBLIQUE_MUS, oblique_dir, oblique_pairs
+from jaxsss.render.bssrdf import OBLIQUE_MUS, SHIFT_ALBEDO, oblique_dir, oblique_pairs
 
 PHOTONS = {0.0: 200_000, 0.9: 100_000}
 """Photons per oblique table (the normal-incidence tables have 1e6): the model interpolates between angles, so a
 few per cent of noise in the far tail of one angle is averaged with its neighbours."""
+
+
+def measure_shifts(albedos=SHIFT_ALBEDO, mus=OBLIQUE_MUS, photons: int = 100_000, g: float = 0.0, n: float = 1.0):
+    """``(len(albedos), len(mus))``: the first moment of the exit positions along the beam, ``<x>``, over
+    ``sin(theta_t) / sigma_t'``, from :func:`jaxsss.mc.simulate` runs (``sigma_s' = 1/mm``, ``R_xy`` on a 0.25 mm
+    grid over +-40 mm; seed 5)."""
+    import numpy as np
+
+    from jaxsss.mc import Stack, simulate
+
+    edges = np.linspace(-40.0, 40.0, 321)
+    centres = 0.5 * (edges[1:] + edges[:-1])
+    out = np.zeros((len(albedos), len(mus)))
+    for i, ap in enumerate(albedos):
+        sigma_a = (1.0 - ap) / ap
+        for k, mu in enumerate(mus):
+            angle = math.degrees(math.acos(mu))
+            res = simulate(Stack.half_space(sigma_a, 1.0 / (1.0 - g), g, n), photons, seed=5, angle_deg=angle,
+                           xy_edges=edges, progress=False)
+            x = float((res.R_xy.sum(axis=1) * centres).sum() / res.R_xy.sum())
+            sin_t = math.sin(math.radians(angle)) / n
+            out[i, k] = x / (sin_t / (sigma_a + 1.0))
+    return out
 
 
 def main(argv=None) -> int:
@@ -31,7 +55,14 @@ def main(argv=None) -> int:
     p.add_argument("--photons", type=int, default=None, help="photons per table (default: 2e5 for g = 0, 1e5 else)")
     p.add_argument("--mu", type=float, nargs="*", default=None,
                    help=f"incidence cosines in air (default: {' '.join(f'{m:g}' for m in OBLIQUE_MUS)})")
+    p.add_argument("--shifts", action="store_true", help="measure the forward shifts (SHIFT_RATIO) and print them")
     args = p.parse_args(argv)
+    if args.shifts:
+        table = measure_shifts(photons=args.photons or 100_000, g=args.g, n=args.n)
+        print(f"albedo rows {SHIFT_ALBEDO}, mu columns {OBLIQUE_MUS}")
+        for ap, row in zip(SHIFT_ALBEDO, table):
+            print(f"{ap:5g}: " + ", ".join(f"{v:.3f}" for v in row))
+        return 0
     if not args.regenerate:
         for g, n in oblique_pairs():
             for mu in OBLIQUE_MUS:

@@ -85,7 +85,7 @@ class Prepared(ShadedPoints):
         """The sums' kernel for ``medium``: None (the dipole) or a :class:`~jaxsss.render.bssrdf.WhiteKernel`."""
         if self.bssrdf == "dipole":
             return None
-        return white_kernel(medium, self.bssrdf_tables, shift=self.light_tangent is not None)
+        return white_kernel(medium, self.bssrdf_tables, self.bssrdf_mus, shift=self.light_tangent is not None)
 
     def exitance(self, medium: Medium, blocks: slice | None = None):
         """Radiant exitance ``M_o`` at the shaded points, ``(Q, C)`` W/mm^2 (``blocks``: part of the pair list)."""

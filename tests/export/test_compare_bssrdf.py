@@ -1,0 +1,42 @@
+"""jaxsss's default renderer against the committed Mitsuba reference (tests/export/references/skin1_sphere): a test
+that fails when the image error grows.
+
+The scene: skin1 (Jensen 2001) on a 20 mm sphere, eta = 1, g = 0, one point light, 64 x 64; the reference is
+Mitsuba 3's volpathmis at 8192 spp (1.1-1.9% per-pixel noise; its .json sidecar). The default kernel for this medium
+is ``white-oblique`` (jaxsss.render.bssrdf). Goals of issue 17: mare_lit <= 5% per channel, <= 15% in the terminator
+band, summed radiance within 3%. Achieved (2026-11-23): mare_lit 0.089 / 0.074 / 0.069, band 0.153 / 0.141 / 0.184,
+sum ratio 0.993 / 1.001 / 0.997 -- the sums meet the goal; mare_lit misses it by 2-4 points and the band by up to 3.4.
+The bounds below are the achieved levels plus a margin of about 10% of each (the render is deterministic: the margin
+is for platform rounding and future table regeneration, not noise), and the goal where it is met. The dipole plus
+single scattering (the old kernel) must stay outside them: 0.138 / 0.181 / 0.225, band 0.28-0.38, sums 1.12-1.23.
+"""
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from jaxsss.export.compare import compare_images, pixel_geometry
+from jaxsss.render import load_scene, render
+
+REFERENCES = Path(__file__).parent / "references"
+MARE_LIT_MAX = (0.098, 0.082, 0.076)
+BAND_MAX = (0.17, 0.155, 0.20)
+SUM_TOL = 0.03  # the goal, met (measured within 0.7%)
+
+
+@pytest.fixture(scope="module")
+def skin1():
+    scene = load_scene(REFERENCES / "skin1_sphere.toml")
+    data = np.load(REFERENCES / "skin1_sphere.npz")
+    return scene, data["image"].astype(np.float64), data["coverage"].astype(np.float64), pixel_geometry(scene)
+
+
+def test_default_render_is_within_the_achieved_error_of_the_path_tracer(skin1):
+    scene, ref, coverage, pixels = skin1
+    result = render(scene)
+    assert result.report["plan"]["bssrdf"] == "white-oblique"
+    m = compare_images(result.image, ref, pixels, coverage=coverage)
+    assert np.all(np.array(m["mare_lit"]) <= MARE_LIT_MAX), m["mare_lit"]
+    assert np.all(np.array(m["mare_band"]) <= BAND_MAX), m["mare_band"]
+    assert np.all(np.abs(np.array(m["sum_ratio"]) - 1.0) <= SUM_TOL), m["sum_ratio"]
