@@ -216,7 +216,8 @@ def weighted_disc_integral(rho0, medium: Medium):
 
 def exitance_near(medium: Medium, query_pos, sample_pos, sample_area, sample_flux, near_query, near_sample, rho0,
                   *, shared_channel=False, kernel=None):
-    """The near-field part of ``M_o`` (module docstring), ``(Q, C)``.
+    """The near-field part of ``M_o`` (module docstring), ``(Q, C)`` (``(Q, K, C)`` for a kernel with incidence
+    nodes, :class:`jaxsss.render.bssrdf.WhiteKernel`).
 
     Args:
         query_pos: ``(Q, 3)`` mm.
@@ -261,7 +262,7 @@ def exitance_pairs(medium: Medium, query_pos, ent_pos, ent_flux, pair_query, pai
         kernel: the profile (default the dipole of ``medium``; see :func:`exitance_near`).
 
     Returns:
-        ``(Q, C)``. The blocks are summed in a ``lax.scan`` whose body is rematerialised in reverse mode, so memory
+        ``(Q, C)`` (``(Q,) + kernel.value_shape``). The blocks are summed in a ``lax.scan`` whose body is rematerialised in reverse mode, so memory
         stays at one block.
     """
     n_q = query_pos.shape[0]
@@ -381,7 +382,8 @@ def exitance_near_gradient(medium: Medium, query_pos, sample_pos, sample_area, s
 
 def exitance_direct(medium: Medium, query_pos, sample_pos, sample_flux, sample_area, rho0, *, block: int = 64,
                     shared_channel=False, kernel=None):
-    """Brute-force ``M_o`` at every query point from every sample (the reference method), ``(Q, C)``, with the same
+    """Brute-force ``M_o`` at every query point from every sample (the reference method), ``(Q, C)`` (``(Q,) +
+    kernel.value_shape``), with the same
     near-field split (radius ``rho0``, mm; 0 for pure point sums) as the hierarchical method.
 
     Queries are processed in blocks of ``block`` against all ``N`` samples (memory ``block * N`` times the size of
