@@ -288,19 +288,34 @@ class WhiteKernel(eqx.Module):
     def value_shape(self, flux_shape):
         return tuple(flux_shape[-2:])
 
-    def pair(self, delta, flux):
-        """``(P, K, C)``: ``R_k(|delta - s_k|) F_k`` for offsets ``delta = x - P`` ``(P, 3)`` mm; ``s_k =
-        shift_length V_k / F_k`` is the entity's mean forward shift (zero without a shift). The nodes stay apart:
-        their exit distributions differ (:func:`exit_radiance_nodes`)."""
+    def _distance(self, delta, flux):
+        """``(r, F)``: the distance from each node's (shifted) point of entry, ``(P,)`` or ``(P, K, C)`` mm, and the
+        incident flux ``(P, K, C)``; ``s_k = shift_length V_k / F_k`` is the entity's mean forward shift."""
         if self.shift_length is None:
-            r = jnp.sqrt(jnp.maximum(jnp.sum(delta * delta, axis=-1), 1e-300))
-            return self.profile(r) * flux
+            return jnp.sqrt(jnp.maximum(jnp.sum(delta * delta, axis=-1), 1e-300)), flux
         f, v = flux[:, 0], flux[:, 1:]  # (P, K, C), (P, 3, K, C)
         s = self.shift_length * v / jnp.where(f > 0, f, 1.0)[:, None]
         d = delta[:, :, None, None] - s
         # Oblique incidence: the profile about the shifted point of entry.
-        r = jnp.sqrt(jnp.maximum(jnp.sum(d * d, axis=1), 1e-300))
+        return jnp.sqrt(jnp.maximum(jnp.sum(d * d, axis=1), 1e-300)), f
+
+    def pair(self, delta, flux):
+        """``(P, K, C)``: ``R_k(|delta - s_k|) F_k`` for offsets ``delta = x - P`` ``(P, 3)`` mm (``s_k = 0`` without
+        a shift). The nodes stay apart: their exit distributions differ (:func:`exit_radiance_nodes`)."""
+        r, f = self._distance(delta, flux)
         return self.profile(r) * f
+
+    def near_terms(self, delta, flux, area, rho0):
+        """A near pair's ``(point, w F, w A)``, each ``(P, K, C)``, with the near-field weight at the distance from
+        the *shifted* entry point, so that the point part ``(1 - w) R`` vanishes where ``R`` peaks
+        (:func:`jaxsss.render.radiance.exitance_near`)."""
+        from jaxsss.render.radiance import near_weight
+
+        r, f = self._distance(delta, flux)
+        if r.ndim == 1:
+            r = jnp.broadcast_to(r[:, None, None], f.shape)
+        w = near_weight(r, rho0)
+        return (1.0 - w) * self.profile(r) * f, w * f, w * area[:, None, None]
 
     def weighted_disc(self, rho0):
         """``(K, C)``: ``I_w = int_0^rho0 w(r) 2 pi r R_k(r) dr`` with the near-field weight ``w`` of
@@ -314,10 +329,7 @@ class WhiteKernel(eqx.Module):
         return jnp.sum(f, axis=0)
 
     def disc(self, spread, rho0):
-        """``(Q, K, C)``: ``E_k I_w,k`` for the near field's mean incident flux density ``spread`` (``(Q, K, C)``, or
-        ``(Q, 4, K, C)`` with a shift, whose direction rows the disc ignores)."""
-        if self.shift_length is not None:
-            spread = spread[:, 0]
+        """``(Q, K, C)``: ``E_k I_w,k`` for the near field's mean incident flux density ``spread`` ``(Q, K, C)``."""
         return spread * self.weighted_disc(rho0)
 
 

@@ -89,6 +89,13 @@ class DipoleKernel(eqx.Module):
     def disc(self, spread, rho0):
         return spread * weighted_disc_integral(rho0, self.medium)
 
+    def near_terms(self, delta, flux, area, rho0):
+        """A near pair's ``(point, w Phi, w A)`` (module docstring's split): the point part ``(1 - w) R_d Phi`` and the
+        weighted flux and area the disc averages."""
+        r = jnp.sqrt(jnp.maximum(jnp.sum(delta * delta, axis=-1), 1e-300))
+        w = near_weight(r, rho0)
+        return self.pair(delta, _per_pair(1.0 - w, flux) * flux), _per_pair(w, flux) * flux, w * area
+
     def value_shape(self, flux_shape):
         return tuple(flux_shape[1:])
 
@@ -99,8 +106,8 @@ def _kernel(medium: Medium, kernel, shared_channel: bool):
 
 
 def _per_pair(v, flux):
-    """``v`` ``(P,)`` broadcast against a pair flux ``(P, ...)``."""
-    return v.reshape(v.shape + (1,) * (flux.ndim - 1))
+    """``v`` (``(P,)``, or already with some of the flux's trailing axes) broadcast against a pair flux ``(P, ...)``."""
+    return v.reshape(v.shape + (1,) * (flux.ndim - v.ndim))
 
 
 def _transmittance(eta, cos_outside):
@@ -231,17 +238,14 @@ def exitance_near(medium: Medium, query_pos, sample_pos, sample_area, sample_flu
     n_q = query_pos.shape[0]
     kernel = _kernel(medium, kernel, shared_channel)
     delta = query_pos[jnp.minimum(near_query, n_q - 1)] - sample_pos[near_sample]
-    r = jnp.sqrt(jnp.maximum(jnp.sum(delta * delta, axis=-1), 1e-300))
-    w = near_weight(r, rho0)
-    flux = sample_flux[near_sample]
 
     def seg(v):
         return jax.ops.segment_sum(v, near_query, num_segments=n_q + 1, indices_are_sorted=True)[:n_q]
 
-    area = seg(w * sample_area[near_sample])
-    spread = seg(_per_pair(w, flux) * flux) / _per_pair(jnp.where(area > 0, area, 1.0), flux)
-    point = seg(kernel.pair(delta, _per_pair(1.0 - w, flux) * flux))
-    return kernel.disc(spread, rho0) + point
+    point, w_flux, w_area = kernel.near_terms(delta, sample_flux[near_sample], sample_area[near_sample], rho0)
+    area = seg(w_area)
+    spread = seg(w_flux) / _per_pair(jnp.where(area > 0, area, 1.0), w_flux)
+    return kernel.disc(spread, rho0) + seg(point)
 
 
 def exitance_pairs(medium: Medium, query_pos, ent_pos, ent_flux, pair_query, pair_entity, *, shared_channel=False,
@@ -397,16 +401,17 @@ def exitance_direct(medium: Medium, query_pos, sample_pos, sample_flux, sample_a
 
     @jax.checkpoint
     def one(q):
-        delta = q[:, None, :] - sample_pos[None, :, :]  # (block, N, 3)
-        r = jnp.sqrt(jnp.maximum(jnp.sum(delta * delta, axis=-1), 1e-300))
-        w = near_weight(r, rho0)
+        delta = (q[:, None, :] - sample_pos[None, :, :]).reshape(-1, 3)  # (block * N, 3)
         flux = jnp.broadcast_to(sample_flux[None], (q.shape[0],) + sample_flux.shape)
-        flat = flux.reshape((-1,) + sample_flux.shape[1:])
-        point = kernel.pair(delta.reshape(-1, 3), _per_pair((1.0 - w).reshape(-1), flat) * flat)
-        point = jnp.sum(point.reshape((q.shape[0], n_s) + point.shape[1:]), axis=1)
-        area = jnp.sum(w * sample_area[None], axis=1)
-        spread = jnp.einsum("bn,bn...->b...", w, flux) / _per_pair(jnp.where(area > 0, area, 1.0), flux[:, 0])
-        return point + kernel.disc(spread, rho0)
+        area = jnp.broadcast_to(sample_area[None], (q.shape[0], n_s)).reshape(-1)
+        point, w_flux, w_area = kernel.near_terms(delta, flux.reshape((-1,) + sample_flux.shape[1:]), area, rho0)
+
+        def per_query(v):
+            return jnp.sum(v.reshape((q.shape[0], n_s) + v.shape[1:]), axis=1)
+
+        w_area = per_query(w_area)
+        spread = per_query(w_flux) / _per_pair(jnp.where(w_area > 0, w_area, 1.0), per_query(w_flux))
+        return per_query(point) + kernel.disc(spread, rho0)
 
     return jax.lax.map(one, qp).reshape((-1,) + kernel.value_shape(sample_flux.shape))[:n_q]
 
