@@ -175,7 +175,7 @@ def test_the_plan_chooses_the_kernel_and_counts_single_scattering_once():
 
 
 def test_white_oblique_image_gradient_matches_finite_differences(monkeypatch):
-    # One oblique node instead of four: the same code (hat weights, shift, exit per node) at a fifth of the compile.
+    # One oblique node instead of the default two: the same code (hat weights, shift, exit per node), less to compile.
     monkeypatch.setattr(bssrdf, "KERNEL_MUS", (0.5,))
     scene = _scene({"sigma_a": [0.05, 0.1, 0.2], "sigma_s_prime": [1.1, 1.5, 2.0], "eta": 1.0})
     prepared, plan, _ = prepare(scene, method="direct", share_channels=False)
