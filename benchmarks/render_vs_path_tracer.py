@@ -5,8 +5,10 @@ light) a high-spp Mitsuba reference is committed next to the scene (``<name>.npz
 radiance and ``coverage`` (H, W), Mitsuba's object mask; ``<name>.json``: command, variant, spp, seeds, Mitsuba
 version, seconds, and the reference's own noise). Against it:
 
-- jaxsss: ``jaxsss.render.render(scene, method=m)`` for ``hierarchical`` (eps 0.05 and 0.2; quick: 0.05) and
-  ``direct``: ``seconds`` is the whole render without JAX compilation (``compile_seconds``, from jax.monitoring);
+- jaxsss: ``jaxsss.render.render(scene, method=m, bssrdf=k)`` for ``hierarchical`` (eps 0.05 and 0.2; quick: 0.05)
+  and ``direct``, with the old kernel (``dipole``: the dipole plus single scattering) and the new ones (``white``,
+  ``white-oblique``; :mod:`jaxsss.render.bssrdf`): ``seconds`` is the whole render without JAX compilation
+  (``compile_seconds``, from jax.monitoring);
 - Mitsuba ``volpathmis`` (the scene exported by :mod:`jaxsss.export.mitsuba`) at increasing spp with seeds that
   differ from the reference's: ``seconds`` is ``mi.render`` after one warm-up render per scene at the smallest spp
   (the warm-up's extra time, the LLVM kernel compilation, is that row's ``compile_seconds``; the kernels are
@@ -45,10 +47,16 @@ REFERENCE_SEEDS = (0, 1)  # two halves, averaged; their difference measures the 
 LLVM_CANDIDATES = ("/usr/lib/x86_64-linux-gnu/libLLVM-19.so", "/usr/lib/x86_64-linux-gnu/libLLVM.so.19.1")
 ERROR_METRIC = "max over RGB of mean |relative error| over lit fully covered pixels vs the Mitsuba reference"
 CONFIG = {
-    "quick": dict(mitsuba_spp=(16, 64, 256), jaxsss=(("hierarchical", 0.05), ("direct", None))),
+    "quick": dict(mitsuba_spp=(16, 64, 256),
+                  jaxsss=(("hierarchical", 0.05, "dipole"), ("hierarchical", 0.05, "white"),
+                          ("hierarchical", 0.05, "white-oblique"), ("direct", None, "white-oblique"))),
     "full": dict(mitsuba_spp=(16, 64, 256, 1024, 4096),
-                 jaxsss=(("hierarchical", 0.05), ("hierarchical", 0.2), ("direct", None))),
+                 jaxsss=(("hierarchical", 0.05, "dipole"), ("hierarchical", 0.2, "dipole"), ("direct", None, "dipole"),
+                         ("hierarchical", 0.05, "white"), ("hierarchical", 0.05, "white-oblique"),
+                         ("hierarchical", 0.2, "white-oblique"), ("direct", None, "white-oblique"))),
 }
+"""jaxsss rows: (method, eps, BSSRDF kernel of :mod:`jaxsss.render.bssrdf`). ``"auto"`` would pick per material; the
+rows name the kernel so that old and new are compared on every scene."""
 
 
 def _llvm_env() -> None:
@@ -137,16 +145,17 @@ def _jaxsss_rows(name, scene, ref, coverage, pixels, settings):
     from jaxsss.render import render
 
     rows, images = [], {}
-    for method, eps in settings:
-        kwargs = {"method": method} if eps is None else {"method": method, "eps": eps}
+    for method, eps, bssrdf in settings:
+        kwargs = {"method": method, "bssrdf": bssrdf} if eps is None else {"method": method, "eps": eps,
+                                                                            "bssrdf": bssrdf}
         with compile_clock() as c:
             result = render(scene, **kwargs)
         m = compare_images(result.image, ref, pixels, coverage=coverage)
-        label = method if eps is None else f"{method} eps={eps:g}"
+        label = (method if eps is None else f"{method} eps={eps:g}") + f" {bssrdf}"
         images[label] = result.image
-        rows.append(make_row(NAME, f"{name}: jaxsss {method}", label if eps is not None else method,
-                             max(m["mare_lit"]), ERROR_METRIC, max(c["wall"] - c["compile"], 1e-9), c["compile"],
-                             scene=name, renderer="jaxsss", **m))
+        rows.append(make_row(NAME, f"{name}: jaxsss {method} {bssrdf}", label, max(m["mare_lit"]), ERROR_METRIC,
+                             max(c["wall"] - c["compile"], 1e-9), c["compile"], scene=name, renderer="jaxsss",
+                             bssrdf=bssrdf, **m))
     return rows, images
 
 
@@ -179,7 +188,7 @@ def _error_maps(panels, path):
         row[0].imshow(np.clip(ref / peak, 0, 1) ** (1 / 2.2))
         row[0].set_title(f"{name}: Mitsuba reference", fontsize=8)
         row[1].imshow(np.clip(test / peak, 0, 1) ** (1 / 2.2))
-        row[1].set_title("jaxsss hierarchical", fontsize=8)
+        row[1].set_title("jaxsss hierarchical (" + name.split(" ", 1)[-1] + ")", fontsize=8)
         for c in range(3):
             im = row[2 + c].imshow(emap[..., c], cmap="RdBu_r", vmin=-0.5, vmax=0.5)
             row[2 + c].set_title(f"(jaxsss - ref) / ref, {'RGB'[c]}", fontsize=8)
@@ -216,8 +225,9 @@ def main(argv=None) -> int:
         pixels = pixel_geometry(scene)
         jrows, images = _jaxsss_rows(name, scene, ref, coverage, pixels, cfg["jaxsss"])
         rows += jrows + _mitsuba_rows(name, scene, ref, coverage, pixels, cfg["mitsuba_spp"])
-        hier = images[next(k for k in images if k.startswith("hierarchical"))]
-        panels.append((name, ref, hier, error_map(hier, ref, pixels, coverage=coverage)))
+        for kernel in ("dipole", "white-oblique"):
+            hier = images[next(k for k in images if k.startswith("hierarchical") and k.endswith(" " + kernel))]
+            panels.append((f"{name} {kernel}", ref, hier, error_map(hier, ref, pixels, coverage=coverage)))
         summary[name] = {"reference_spp": meta["spp"], "reference_seconds": meta["seconds"],
                          "reference_noise_mare": meta["noise_mare_lit"],
                          "jaxsss_error_by_cos": {label: error_by_cos(img, ref, pixels, coverage=coverage)

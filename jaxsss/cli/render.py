@@ -32,6 +32,7 @@ _OPTIONS = {
     "cache_gradient": ("gradient", None),
     "one_pass": ("one_pass", None),
     "cache_always": ("always", None),
+    "bssrdf": ("bssrdf", None),
 }
 
 
@@ -76,6 +77,10 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
                         "costs more end to end than it saves; see --explain)")
     p.add_argument("--debug-images", action="store_true",
                    help="cached method: also write OUT_caches.png, OUT_gradient.png and OUT_variance.png")
+    p.add_argument("--bssrdf", choices=("auto", "dipole", "white", "white-oblique"), default=None,
+                   help="hierarchical and direct methods: the profile kernel (jaxsss.render.bssrdf); auto (default) "
+                        "takes the white Monte Carlo profiles where tables exist for (g, eta), with oblique "
+                        "incidence where those exist, else the dipole plus single scattering; --explain says which")
     p.add_argument("--eps", type=number, default=None,
                    help="solid-angle threshold of the hierarchical sums, sr (Eq. 12; default: the scene's)")
     p.add_argument("--resolution", type=int, nargs=2, metavar=("W", "H"), default=None,

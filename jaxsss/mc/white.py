@@ -102,9 +102,10 @@ def table_edges(path_max: float) -> tuple[np.ndarray, np.ndarray]:
 
 
 def generate_white_table(g: float, n: float, photons: int, *, path_max: float = 1e4, seed: int = 0,
-                         lanes: int | None = None, max_steps: int | None = None) -> dict:
+                         lanes: int | None = None, max_steps: int | None = None, angle_deg: float = 0.0) -> dict:
     """Run the non-absorbing half-space (``sigma_s = 1``, anisotropy ``g``, index ``n`` under air) and return the
-    table as a dict of NumPy arrays and scalars (what :func:`save` writes)."""
+    table as a dict of NumPy arrays and scalars (what :func:`save` writes). ``angle_deg``: incidence from the normal
+    (degrees, in air); the radial bins are then about the point of entry, averaged over azimuth."""
     from jaxsss.mc.engine import simulate
     from jaxsss.mc.stack import Stack
 
@@ -112,7 +113,7 @@ def generate_white_table(g: float, n: float, photons: int, *, path_max: float = 
     # A step is ~1 optical unit on average, so a walk reaching L = path_max takes ~path_max events (+ surface hits).
     max_steps = int(1.2 * path_max) if max_steps is None else max_steps
     res = simulate(Stack.half_space(0.0, 1.0, g, n), photons, seed=seed, r_edges=r_edges, pathlength_edges=p_edges,
-                   batch_size=photons, lanes=lanes, max_steps=max_steps, progress=False)
+                   batch_size=photons, lanes=lanes, max_steps=max_steps, progress=False, angle_deg=angle_deg)
     R, R_err, area = res.R_r_path, res.R_r_path_stderr, res.annulus_areas
     # Leading bins with few photons (g = 0.9 sends almost nothing back within 1e-2 of the source) are merged into
     # the first bin [0, r_k): area-weighted averages, errors added in quadrature.
@@ -144,7 +145,7 @@ def generate_white_table(g: float, n: float, photons: int, *, path_max: float = 
                            "use more photons")
     in_table = float((R_r[:keep] * area[:keep]).sum())
     return {
-        "g": g, "n": n, "photons": photons, "seed": seed, "path_max": path_max, "max_steps": max_steps,
+        "g": g, "n": n, "angle_deg": angle_deg, "photons": photons, "seed": seed, "path_max": path_max, "max_steps": max_steps,
         "lanes": res.lanes, "seconds": res.seconds, "events": res.events,
         "r_edges": r_edges[: keep + 1], "pathlength_edges": p_edges,
         "R": R[:keep].astype(np.float32), "R_stderr": R_err[:keep].astype(np.float32), "R_r": R_r[:keep], "R_r_stderr": err_r[:keep],

@@ -7,8 +7,11 @@ force a term ``"on"`` or ``"off"``; ``"auto"`` lets the plan decide:
 - **shadow rays**: left out for a convex mesh alone in the scene (a light is then blocked exactly when it is below
   the horizon, which the cosine already handles);
 - **indirect bounce**: left out for a lone object (nothing else to bounce off; self inter-reflection is not modelled);
-- **single scattering**: left out when its estimated share of the exitance
-  (:func:`~jaxsss.render.radiance.single_scattering_share`) is below the tolerance;
+- **BSSRDF** (when the caller asks, ``bssrdf=``; the hierarchical and direct methods do): the transport-accurate white
+  Monte Carlo profiles, with their incidence-angle dependence where oblique tables exist, or the dipole
+  (:func:`~jaxsss.render.bssrdf.choose_bssrdf`);
+- **single scattering**: left out when the BSSRDF already holds it (the white profiles hold every order) or when its
+  estimated share of the exitance (:func:`~jaxsss.render.radiance.single_scattering_share`) is below the tolerance;
 - **cut-off radius**: pairs farther than ``ln(1/tol) / sigma_tr`` are dropped when that radius is smaller than the
   object;
 - **shared channel**: the profile is evaluated once when all channels have identical coefficients;
@@ -58,6 +61,7 @@ class ScenePlan(NamedTuple):
     r_cut: float | None
     shared_channel: bool
     items: tuple[PlanItem, ...]
+    bssrdf: str = "dipole"
 
     def explain(self) -> str:
         """The plan as text, one line per decision."""
@@ -78,7 +82,7 @@ def _forced(setting: str, name: str):
 
 
 def make_plan(scene, *, method: str | None = None, eps: float | None = None, cutoff: bool = True,
-              share_channels: bool = True) -> ScenePlan:
+              share_channels: bool = True, bssrdf: str | None = None) -> ScenePlan:
     """Decide the passes and terms for ``scene``.
 
     Args:
@@ -87,7 +91,10 @@ def make_plan(scene, *, method: str | None = None, eps: float | None = None, cut
         eps: the solid-angle threshold of Eq. 12; defaults to the scene's.
         cutoff: allow the cut-off radius (fitting turns it off: it depends on the material being fitted).
         share_channels: allow evaluating one channel for identical channels (fitting turns it off).
+        bssrdf: the profile kernel to decide (:data:`jaxsss.render.bssrdf.BSSRDFS`; ``"auto"`` chooses); None
+            (methods with their own transport model) leaves the dipole and adds no plan line.
     """
+    from jaxsss.render.bssrdf import choose_bssrdf
     from jaxsss.render.radiance import single_scattering_share
 
     settings = scene.render
@@ -122,11 +129,20 @@ def make_plan(scene, *, method: str | None = None, eps: float | None = None, cut
                if lone else f"{len(scene.occluders)} occluder(s) reflect light onto the object (one bounce)")
     items.append(PlanItem("indirect bounce", indirect, why))
 
+    kernel = "dipole"
+    if bssrdf is not None:
+        kernel, why = choose_bssrdf(medium, bssrdf)
+        items.append(PlanItem(f"bssrdf: {kernel}", True, why))
+
     share = float(np.max(np.asarray(single_scattering_share(medium))))
     single, why = _forced(settings.single_scattering, "single_scattering")
-    if single is None:
+    if single is None and kernel != "dipole":
+        single, why = False, "already in the white Monte Carlo profile (every scattering order): counted once"
+    elif single is None:
         single = share >= tol
         why = f"estimated share of the exitance {share:.2g} {'>=' if single else '<'} tolerance {tol:g}"
+    elif single and kernel != "dipole":
+        why = f"{why}: WARNING, the white profile holds single scattering already (counted twice)"
     else:
         why = f"{why} (estimated share {share:.2g})"
     items.append(PlanItem("single scattering", single, why))
@@ -163,12 +179,13 @@ def make_plan(scene, *, method: str | None = None, eps: float | None = None, cut
     ratio = thickness / l_d
     if ratio >= THICK_IN_LD:
         items.append(PlanItem("multipole", False,
-                              f"the object is {ratio:.3g} l_d thick (>= {THICK_IN_LD:g}): the dipole's half-space "
+                              f"the object is {ratio:.3g} l_d thick (>= {THICK_IN_LD:g}): the half-space profile "
                               "holds"))
     else:
         items.append(PlanItem("multipole", False,
                               f"WARNING: the object is only {ratio:.3g} l_d thick; a second boundary matters but this "
-                              "renderer evaluates the dipole, which overestimates the reflectance of thin parts"))
+                              f"renderer evaluates a half-space profile ({kernel}), which overestimates the "
+                              "reflectance of thin parts"))
 
     layers = getattr(scene, "layers", None)
     items.append(PlanItem("ray marching", False,
@@ -183,4 +200,5 @@ def make_plan(scene, *, method: str | None = None, eps: float | None = None, cut
     if scene.occluders:
         items.append(PlanItem("occluders", True, f"{len(scene.occluders)} opaque Lambertian object(s) shaded "
                                                  "directly"))
-    return ScenePlan(method, eps, n_samples, shadows, indirect, single, specular, r_cut, shared, tuple(items))
+    return ScenePlan(method, eps, n_samples, shadows, indirect, single, specular, r_cut, shared, tuple(items),
+                     kernel)

@@ -42,6 +42,7 @@ from jaxsss.profiles.point_sources import point_source_exitance
 from jaxsss.reflectance import medium_total_diffuse_reflectance
 
 __all__ = [
+    "DipoleKernel",
     "F_dt_external",
     "dipole_gradient_factor",
     "disc_integral",
@@ -71,6 +72,42 @@ def _dipole(r, medium: Medium):
     # Hierarchical paper Eq. 8-9: the real source at z_r and its image at z_v.
     return medium.alpha_prime * (point_source_exitance(z_r, r, medium.sigma_tr)
                                  + point_source_exitance(z_v, r, medium.sigma_tr))
+
+
+class DipoleKernel(eqx.Module):
+    """The dipole as a kernel of the sums (the interface :mod:`jaxsss.render.bssrdf` kernels share):
+    ``pair(delta, flux)`` is ``R_d(|delta|) Phi`` per pair, ``(P, C)``, for the offsets ``delta = x - P`` ``(P, 3)``
+    mm; ``disc(spread, rho0)`` the near field's ``E I_w``, ``(Q, C)``; ``value_shape(flux_shape)`` the trailing shape
+    of one pair's value."""
+
+    medium: Medium
+
+    def pair(self, delta, flux):
+        r = jnp.sqrt(jnp.maximum(jnp.sum(delta * delta, axis=-1), 1e-300))
+        return _dipole(r[:, None], self.medium) * flux
+
+    def disc(self, spread, rho0):
+        return spread * weighted_disc_integral(rho0, self.medium)
+
+    def near_terms(self, delta, flux, area, rho0):
+        """A near pair's ``(point, w Phi, w A)`` (module docstring's split): the point part ``(1 - w) R_d Phi`` and the
+        weighted flux and area the disc averages."""
+        r = jnp.sqrt(jnp.maximum(jnp.sum(delta * delta, axis=-1), 1e-300))
+        w = near_weight(r, rho0)
+        return self.pair(delta, _per_pair(1.0 - w, flux) * flux), _per_pair(w, flux) * flux, w * area
+
+    def value_shape(self, flux_shape):
+        return tuple(flux_shape[1:])
+
+
+def _kernel(medium: Medium, kernel, shared_channel: bool):
+    """``kernel``, or the dipole of ``medium`` (one channel when the plan shares it)."""
+    return DipoleKernel(_kernel_medium(medium, shared_channel)) if kernel is None else kernel
+
+
+def _per_pair(v, flux):
+    """``v`` (``(P,)``, or already with some of the flux's trailing axes) broadcast against a pair flux ``(P, ...)``."""
+    return v.reshape(v.shape + (1,) * (flux.ndim - v.ndim))
 
 
 def _transmittance(eta, cos_outside):
@@ -185,8 +222,9 @@ def weighted_disc_integral(rho0, medium: Medium):
 
 
 def exitance_near(medium: Medium, query_pos, sample_pos, sample_area, sample_flux, near_query, near_sample, rho0,
-                  *, shared_channel=False):
-    """The near-field part of ``M_o`` (module docstring), ``(Q, C)``.
+                  *, shared_channel=False, kernel=None):
+    """The near-field part of ``M_o`` (module docstring), ``(Q, C)`` (``(Q, K, C)`` for a kernel with incidence
+    nodes, :class:`jaxsss.render.bssrdf.WhiteKernel`).
 
     Args:
         query_pos: ``(Q, 3)`` mm.
@@ -194,22 +232,24 @@ def exitance_near(medium: Medium, query_pos, sample_pos, sample_area, sample_flu
         near_query, near_sample: ``(K,)`` the (query, sample) pairs closer than ``rho0`` (padding: query ``Q``),
             query indices ascending.
         rho0: the near-field radius, mm.
+        kernel: the profile (:class:`DipoleKernel` of ``medium`` by default; :mod:`jaxsss.render.bssrdf`), whose
+            sample flux may carry extra axes (``(N, K, C)``).
     """
     n_q = query_pos.shape[0]
-    r = _safe_distance(query_pos[jnp.minimum(near_query, n_q - 1)], sample_pos[near_sample])
-    w = near_weight(r, rho0)
-    flux = sample_flux[near_sample]
+    kernel = _kernel(medium, kernel, shared_channel)
+    delta = query_pos[jnp.minimum(near_query, n_q - 1)] - sample_pos[near_sample]
 
     def seg(v):
         return jax.ops.segment_sum(v, near_query, num_segments=n_q + 1, indices_are_sorted=True)[:n_q]
 
-    area = seg(w * sample_area[near_sample])
-    spread = seg(w[:, None] * flux) / jnp.where(area > 0, area, 1.0)[:, None]
-    point = seg(((1.0 - w)[:, None] * _dipole(r[:, None], _kernel_medium(medium, shared_channel))) * flux)
-    return spread * weighted_disc_integral(rho0, medium) + point
+    point, w_flux, w_area = kernel.near_terms(delta, sample_flux[near_sample], sample_area[near_sample], rho0)
+    area = seg(w_area)
+    spread = seg(w_flux) / _per_pair(jnp.where(area > 0, area, 1.0), w_flux)
+    return kernel.disc(spread, rho0) + seg(point)
 
 
-def exitance_pairs(medium: Medium, query_pos, ent_pos, ent_flux, pair_query, pair_entity, *, shared_channel=False):
+def exitance_pairs(medium: Medium, query_pos, ent_pos, ent_flux, pair_query, pair_entity, *, shared_channel=False,
+                   kernel=None):
     """Radiant exitance ``M_o`` (W/mm^2) at every query point, summed over an interaction list.
 
     ``M_o(x_q) = sum_{k: q_k = q} Phi_{e_k} R_d(|x_q - P_{e_k}|)`` (hierarchical paper Eq. 8 and 13, with the
@@ -223,20 +263,20 @@ def exitance_pairs(medium: Medium, query_pos, ent_pos, ent_flux, pair_query, pai
         pair_query, pair_entity: ``(B, K)`` int32 pair lists in ``B`` blocks of ``K`` (padding pairs have
             ``pair_query = Q``); query indices ascending.
         shared_channel: evaluate the profile once for all channels (identical channel parameters).
+        kernel: the profile (default the dipole of ``medium``; see :func:`exitance_near`).
 
     Returns:
-        ``(Q, C)``. The blocks are summed in a ``lax.scan`` whose body is rematerialised in reverse mode, so memory
+        ``(Q, C)`` (``(Q,) + kernel.value_shape``). The blocks are summed in a ``lax.scan`` whose body is rematerialised in reverse mode, so memory
         stays at one block.
     """
     n_q = query_pos.shape[0]
-    kernel_medium = _kernel_medium(medium, shared_channel)
+    kernel = _kernel(medium, kernel, shared_channel)
 
     def contrib(q, e):
-        r = _safe_distance(query_pos[q], ent_pos[e])
         # Hierarchical paper Eq. 13: each entity contributes Phi_v R_d(|x - P_v|).
-        return _dipole(r[:, None], kernel_medium) * ent_flux[e]
+        return kernel.pair(query_pos[q] - ent_pos[e], ent_flux[e])
 
-    return scan_pairs(contrib, n_q, ent_flux.shape[-1:], ent_flux.dtype, pair_query, pair_entity)
+    return scan_pairs(contrib, n_q, kernel.value_shape(ent_flux.shape), ent_flux.dtype, pair_query, pair_entity)
 
 
 def scan_pairs(contrib, n_queries: int, value_shape: tuple, dtype, pair_query, pair_entity):
@@ -345,29 +385,35 @@ def exitance_near_gradient(medium: Medium, query_pos, sample_pos, sample_area, s
 
 
 def exitance_direct(medium: Medium, query_pos, sample_pos, sample_flux, sample_area, rho0, *, block: int = 64,
-                    shared_channel=False):
-    """Brute-force ``M_o`` at every query point from every sample (the reference method), ``(Q, C)``, with the same
+                    shared_channel=False, kernel=None):
+    """Brute-force ``M_o`` at every query point from every sample (the reference method), ``(Q, C)`` (``(Q,) +
+    kernel.value_shape``), with the same
     near-field split (radius ``rho0``, mm; 0 for pure point sums) as the hierarchical method.
 
-    Queries are processed in blocks of ``block`` against all ``N`` samples (memory ``block * N * C`` floats).
+    Queries are processed in blocks of ``block`` against all ``N`` samples (memory ``block * N`` times the size of
+    one sample's flux). ``kernel``: the profile (default the dipole of ``medium``; see :func:`exitance_near`).
     """
     n_q = query_pos.shape[0]
     pad = (-n_q) % block
     qp = jnp.concatenate([query_pos, jnp.broadcast_to(query_pos[:1], (pad, 3))]).reshape(-1, block, 3)
-    kernel_medium = _kernel_medium(medium, shared_channel)
-    i_w = weighted_disc_integral(rho0, medium)
+    kernel = _kernel(medium, kernel, shared_channel)
+    n_s = sample_pos.shape[0]
 
     @jax.checkpoint
     def one(q):
-        r = _safe_distance(q[:, None, :], sample_pos[None, :, :])
-        w = near_weight(r, rho0)
-        point = jnp.sum(((1.0 - w)[..., None] * _dipole(r[..., None], kernel_medium)) * sample_flux[None],
-                        axis=1)
-        area = jnp.sum(w * sample_area[None], axis=1)
-        spread = jnp.sum(w[..., None] * sample_flux[None], axis=1) / jnp.where(area > 0, area, 1.0)[:, None]
-        return point + spread * i_w
+        delta = (q[:, None, :] - sample_pos[None, :, :]).reshape(-1, 3)  # (block * N, 3)
+        flux = jnp.broadcast_to(sample_flux[None], (q.shape[0],) + sample_flux.shape)
+        area = jnp.broadcast_to(sample_area[None], (q.shape[0], n_s)).reshape(-1)
+        point, w_flux, w_area = kernel.near_terms(delta, flux.reshape((-1,) + sample_flux.shape[1:]), area, rho0)
 
-    return jax.lax.map(one, qp).reshape(-1, sample_flux.shape[-1])[:n_q]
+        def per_query(v):
+            return jnp.sum(v.reshape((q.shape[0], n_s) + v.shape[1:]), axis=1)
+
+        w_area = per_query(w_area)
+        spread = per_query(w_flux) / _per_pair(jnp.where(w_area > 0, w_area, 1.0), per_query(w_flux))
+        return per_query(point) + kernel.disc(spread, rho0)
+
+    return jax.lax.map(one, qp).reshape((-1,) + kernel.value_shape(sample_flux.shape))[:n_q]
 
 
 def exit_radiance(medium: Medium, exitance, cos_o):

@@ -21,6 +21,7 @@ from tqdm import tqdm
 
 from jaxsss.medium import Medium
 from jaxsss.render import radiance as rad
+from jaxsss.render.bssrdf import exit_model_for, incident_flux, surface_tangents, white_kernel, white_tables
 from jaxsss.render.camera import camera_frame
 from jaxsss.render.methods import Preparation, register_method
 from jaxsss.render.octree import build_octree
@@ -60,32 +61,57 @@ class Prepared(ReflectingPoints):
     rho0: jax.Array  # ()
     method: str = eqx.field(static=True)
     shared_channel: bool = eqx.field(static=True)
+    # The BSSRDF kernel (jaxsss.render.bssrdf): its white Monte Carlo tables, one per incidence node (None: dipole).
+    bssrdf_tables: tuple | None = None
+    light_tangent: jax.Array | None = None  # (N, L, 3) travel direction inside, on the surface (white-oblique)
+    bssrdf: str = eqx.field(static=True, default="dipole")
+    bssrdf_mus: tuple = eqx.field(static=True, default=(1.0,))
+    bssrdf_exit: str = eqx.field(static=True, default="fresnel")
 
     def sample_flux(self, medium: Medium):
-        """``(N, C)`` flux entering the medium at each sample, W."""
+        """Flux at each sample, W: ``(N, C)`` entering the medium (dipole), or ``(N, K, C)`` incident per incidence
+        node (white kernels; :func:`jaxsss.render.bssrdf.incident_flux`)."""
+        if self.bssrdf != "dipole":
+            return incident_flux(self.bssrdf_mus, self.areas, self.light_cos, self.light_irradiance, self.indirect,
+                                 self.texture, self.light_tangent)
         return rad.transmitted_flux(medium, self.areas, self.light_cos, self.light_irradiance, self.indirect,
                                     self.texture)
+
+    @property
+    def exit_nodes(self):
+        """``(mus, exit model)`` of a white kernel, None for the dipole (:meth:`ShadedPoints.radiance_from_exitance`)."""
+        return None if self.bssrdf == "dipole" else (self.bssrdf_mus, self.bssrdf_exit)
+
+    def kernel(self, medium: Medium):
+        """The sums' kernel for ``medium``: None (the dipole) or a :class:`~jaxsss.render.bssrdf.WhiteKernel`."""
+        if self.bssrdf == "dipole":
+            return None
+        return white_kernel(medium, self.bssrdf_tables, self.bssrdf_mus, shift=self.light_tangent is not None)
 
     def exitance(self, medium: Medium, blocks: slice | None = None):
         """Radiant exitance ``M_o`` at the shaded points, ``(Q, C)`` W/mm^2 (``blocks``: part of the pair list)."""
         flux = self.sample_flux(medium)
+        kernel = self.kernel(medium)
         if self.method == "direct":
             return rad.exitance_direct(medium, self.query_pos, self.sample_pos, flux, self.areas, self.rho0,
-                                       shared_channel=self.shared_channel)
+                                       shared_channel=self.shared_channel, kernel=kernel)
         ent_flux = rad.entity_flux(flux, self.ent_start, self.ent_stop)
         pq, pe = self.pair_query, self.pair_entity
         if blocks is not None:
             pq, pe = pq[blocks], pe[blocks]
         far = rad.exitance_pairs(medium, self.query_pos, self.ent_pos, ent_flux, pq, pe,
-                                 shared_channel=self.shared_channel)
-        return far + self.exitance_near(medium, flux)
+                                 shared_channel=self.shared_channel, kernel=kernel)
+        return far + self.exitance_near(medium, flux, kernel)
 
     def exitance_gradient(self, medium: Medium, *, near: bool = True):
         """Analytic gradient of ``M_o`` with respect to the shaded point's position, ``(Q, 3, C)`` W/mm^3 (caching
         paper Eq. 9 through the same interaction list; hierarchical method only).
 
         ``near=False`` leaves out the near-field disc term (within ``rho0`` of the point): the far-field part alone,
-        which the cached method interpolates with (:mod:`jaxsss.render.cache`, "Which gradient")."""
+        which the cached method interpolates with (:mod:`jaxsss.render.cache`, "Which gradient"). The analytic
+        gradient is the dipole's: a white kernel takes :meth:`exitance_gradient_autodiff` (near and far)."""
+        if self.bssrdf != "dipole":
+            return self.exitance_gradient_autodiff(medium)
         flux = self.sample_flux(medium)
         ent_flux = rad.entity_flux(flux, self.ent_start, self.ent_stop)
         far = rad.exitance_gradient_pairs(medium, self.query_pos, self.ent_pos, ent_flux, self.pair_query,
@@ -106,10 +132,10 @@ class Prepared(ReflectingPoints):
                 for j in range(3)]
         return jnp.stack(cols, axis=1)
 
-    def exitance_near(self, medium: Medium, flux):
+    def exitance_near(self, medium: Medium, flux, kernel=None):
         """The near-field disc part of ``M_o`` (hierarchical method), ``(Q, C)``."""
         return rad.exitance_near(medium, self.query_pos, self.sample_pos, self.areas, flux, self.near_query,
-                                 self.near_sample, self.rho0, shared_channel=self.shared_channel)
+                                 self.near_sample, self.rho0, shared_channel=self.shared_channel, kernel=kernel)
 
     def image(self, medium: Medium):
         """The linear radiance image ``(H, W, C)`` as a JAX function of the medium (differentiable; jitted, with
@@ -143,6 +169,15 @@ def assemble_prepared(scene, plan: ScenePlan, samples, tree, shading: ShadingPoi
 
     order = tree.order
     pairs = pairs or PairLists(None, None, None, None, near_radius(samples), np.zeros(0, int), 0)
+    mus, tables, exit_model, tangent = (1.0,), None, "fresnel", None
+    if plan.bssrdf != "dipole":
+        medium = scene.material.medium
+        mus, tables = white_tables(0.0 if medium.g is None else float(medium.g), float(medium.eta),
+                                   oblique=plan.bssrdf == "white-oblique")
+        exit_model = exit_model_for(medium)
+        if plan.bssrdf == "white-oblique":
+            tangent = jnp.asarray(surface_tangents(samples.light.to_light[order], samples.normals[order],
+                                                   float(medium.eta)))
     return Prepared(
         **shaded_fields(scene, plan, shading),
         sample_pos=jnp.asarray(samples.positions[order]),
@@ -162,12 +197,18 @@ def assemble_prepared(scene, plan: ScenePlan, samples, tree, shading: ShadingPoi
         method=plan.method,
         shared_channel=plan.shared_channel,
         mirror=reflect,
+        bssrdf_tables=tables,
+        light_tangent=tangent,
+        bssrdf=plan.bssrdf,
+        bssrdf_mus=tuple(mus),
+        bssrdf_exit=exit_model,
     )
 
 
 def prepare(scene, *, method: str | None = None, eps: float | None = None, resolution=None,
             plan: ScenePlan | None = None, progress: bool = False, pixel_mask: np.ndarray | None = None,
-            cutoff: bool = True, share_channels: bool = True, block_pairs: int = BLOCK_PAIRS, points=None):
+            cutoff: bool = True, share_channels: bool = True, block_pairs: int = BLOCK_PAIRS, points=None,
+            bssrdf: str = "auto"):
     """Geometry-only work: pass 1, camera rays, octree and interaction lists.
 
     Args:
@@ -182,6 +223,8 @@ def prepare(scene, *, method: str | None = None, eps: float | None = None, resol
         cutoff, share_channels: passed to the plan (fitting turns both off).
         points: optional ``(positions (Q, 3), normals (Q, 3))`` to shade instead of the camera's pixels (the image is
             then ``(1, Q, C)``, diffusion only; validation against the mesh Monte Carlo uses it).
+        bssrdf: the profile kernel, one of :data:`jaxsss.render.bssrdf.BSSRDFS` (``"auto"``: the plan picks the
+            most accurate one with tables for the material).
 
     Returns:
         ``(prepared, plan, info)`` where ``info`` holds timings (s) and counts.
@@ -189,7 +232,8 @@ def prepare(scene, *, method: str | None = None, eps: float | None = None, resol
     t_all = time.perf_counter()
     timings: dict[str, float] = {}
     t0 = time.perf_counter()
-    plan = plan or make_plan(scene, method=method, eps=eps, cutoff=cutoff, share_channels=share_channels)
+    plan = plan or make_plan(scene, method=method, eps=eps, cutoff=cutoff, share_channels=share_channels,
+                             bssrdf=bssrdf)
     timings["plan"] = time.perf_counter() - t0
     bar = tqdm(total=3, desc="render: geometry", disable=not progress, leave=False)
 
@@ -235,13 +279,15 @@ def prepare(scene, *, method: str | None = None, eps: float | None = None, resol
 
 @eqx.filter_jit
 def _image(prepared: Prepared, medium: Medium):
-    return prepared.image_from_radiance(prepared.radiance_from_exitance(medium, prepared.exitance(medium)))
+    return prepared.image_from_radiance(prepared.radiance_from_exitance(medium, prepared.exitance(medium),
+                                                                        prepared.exit_nodes))
 
 
 def _registered(method: str):
-    def prepare_registered(scene, *, resolution=None, pixel_mask=None, fit=False, progress=False, eps=None):
+    def prepare_registered(scene, *, resolution=None, pixel_mask=None, fit=False, progress=False, eps=None,
+                           bssrdf="auto"):
         prepared, plan, info = prepare(scene, method=method, eps=eps, resolution=resolution, progress=progress,
-                                       pixel_mask=pixel_mask, cutoff=not fit, share_channels=not fit)
+                                       pixel_mask=pixel_mask, cutoff=not fit, share_channels=not fit, bssrdf=bssrdf)
         timings = info.pop("timings")
         info.pop("seconds_geometry")
         return Preparation(method, prepared, plan, {"eps": plan.eps, **info}, timings)
@@ -250,14 +296,14 @@ def _registered(method: str):
 
 
 def _explain(method: str):
-    def explain(scene, *, resolution=None, eps=None):
-        return make_plan(scene, method=method, eps=eps)
+    def explain(scene, *, resolution=None, eps=None, bssrdf="auto"):
+        return make_plan(scene, method=method, eps=eps, bssrdf=bssrdf)
 
     return explain
 
 
 register_method("hierarchical", _registered("hierarchical"),
                 "the hierarchical dipole sum over an octree of irradiance samples (Jensen and Buhler 2002)",
-                options=("eps",), explain=_explain("hierarchical"))
+                options=("eps", "bssrdf"), explain=_explain("hierarchical"))
 register_method("direct", _registered("direct"), "the direct O(pixels x samples) dipole sum (the reference)",
-                options=("eps",), explain=_explain("direct"))
+                options=("eps", "bssrdf"), explain=_explain("direct"))

@@ -26,6 +26,7 @@ import numpy as np
 
 from jaxsss.medium import Medium
 from jaxsss.render import radiance as rad
+from jaxsss.render.bssrdf import exit_radiance_nodes
 from jaxsss.render.camera import camera_rays
 from jaxsss.render.lights import light_field
 from jaxsss.render.rays import OBJECT_TRANSLUCENT
@@ -146,11 +147,17 @@ class ShadedPoints(eqx.Module):
     def n_queries(self) -> int:
         return self.query_pos.shape[0]
 
-    def radiance_from_exitance(self, medium: Medium, exitance):
+    def radiance_from_exitance(self, medium: Medium, exitance, exit_nodes=None):
         """Radiance towards the eye at the shaded points, ``(Q, C)`` W/(mm^2 sr): diffusion plus the optional
-        single-scattering and specular terms."""
+        single-scattering and specular terms.
+
+        ``exitance`` is ``(Q, C)``, or ``(Q, K, C)`` per incidence node of a white kernel with ``exit_nodes = (mus,
+        model)`` (:func:`jaxsss.render.bssrdf.exit_radiance_nodes`)."""
         cos_o = jnp.clip(jnp.sum(self.query_normal * self.to_eye, axis=-1), 0.0, 1.0)
-        out = rad.exit_radiance(medium, exitance, cos_o)
+        if exit_nodes is None:
+            out = rad.exit_radiance(medium, exitance, cos_o)
+        else:
+            out = exit_radiance_nodes(medium, exitance, cos_o, *exit_nodes)
         if self.single_scattering:
             out = out + rad.single_scattering(medium, self.query_normal, self.to_eye, self.query_to_light,
                                               self.query_irradiance)

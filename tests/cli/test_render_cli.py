@@ -70,6 +70,8 @@ def test_explain_prints_the_plan(capsys, small_scene):
     code, out, err = run_cli(capsys, "render", small_scene, "--explain")
     assert code == 0, err
     assert "shadow rays" in out and "convex mesh alone" in out and "single scattering" in out
+    # skin1 at its table eta 1.3: no white Monte Carlo table, so the plan keeps the dipole and says so.
+    assert "bssrdf: dipole" in out and "WARNING: no white Monte Carlo table for g=0, eta=1.3" in out
 
 
 def test_every_example_has_a_plan(capsys):
@@ -91,6 +93,8 @@ def test_help_states_units(capsys):
         (["--eps", "-1"], "--eps"),
         (["--resolution", "0", "4"], "--resolution"),
         (["--method", "nope"], "method"),
+        (["--method", "cached", "--bssrdf", "white"], "--bssrdf applies to --method hierarchical / direct"),
+        (["--bssrdf", "white", "--explain"], "bssrdf='white': no table for g=0, eta=1.3"),
     ],
 )
 def test_bad_options_are_one_line_errors(capsys, small_scene, argv, needle):

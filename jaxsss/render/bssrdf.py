@@ -1,0 +1,382 @@
+"""The renderer's BSSRDF kernels: the dipole (Jensen et al. 2001) and transport-accurate white Monte Carlo profiles
+with an incidence-angle dependence.
+
+The hierarchical and direct sums (:mod:`jaxsss.render.radiance`) add ``Phi_p R(|x - P_p|)`` over irradiance samples
+``p``; a *kernel* says what ``Phi`` and ``R`` are:
+
+- ``"dipole"``: ``Phi_p`` is the flux *entering* (exact Fresnel transmittance per light), ``R`` the dipole per entering
+  flux, and the Hanrahan-Krueger single-scattering term is added at the shaded point (the pre-issue-17 renderer).
+- ``"white"``: the white ("scaled") Monte Carlo profile of a half-space for the medium's ``(g, eta)``
+  (:func:`jaxsss.mc.white.white_mc_profile`; Kienle and Patterson 1996). It holds *every* scattering order, single
+  scattering included, so the separate single-scattering term is left out (counted once). Its normalisation is per
+  *incident* photon with the specular reflection excluded, so ``Phi_p`` is the incident flux ``A_p sum_l E_lp`` and the
+  entry Fresnel transmittance is already in the table (multiplying by ``F_t`` again would count it twice).
+- ``"white-oblique"``: the same at ``K`` incidence cosines ``mu_k`` (``1`` and :data:`KERNEL_MUS`, from the tables
+  at :data:`OBLIQUE_MUS`): each sample's
+  flux is split over the angle nodes by linear ("hat") weights in ``mu = cos(normal, to the light)``,
+  ``Phi_pk = A_p sum_l h_k(mu_lp) E_lp``, and ``M_o(x) = sum_p sum_k Phi_pk R_k(|x - P_p|)``, where ``R_k`` is the
+  white Monte Carlo profile for incidence ``mu_k`` averaged over azimuth about the point of entry
+  (:mod:`jaxsss.render.make_oblique_tables`). Grazing light enters shallower and more of it comes back (at albedo
+  0.96 and ``eta = 1`` about 1.5x as much per incident photon at ``mu = 0.1`` as at normal incidence): the dipole,
+  which treats every light as if it fell along the normal, is 28-38% too dark at the terminator. The forward shift of
+  an oblique profile (towards where the light travels) is averaged out: the kernel stays radial, so the hierarchical
+  sum and its octree are unchanged. Diffuse indirect light enters with the cosine-weighted hemispherical average of
+  the node weights.
+
+Evaluation (``"white*"``). Per image the profiles are tabulated once per channel on a grid uniform in ``log(r
+sigma_s)`` (:data:`GRID_PER_DECADE` nodes per decade from :data:`GRID_RHO_MIN` to :data:`GRID_RHO_MAX` optical
+units) from the public :func:`~jaxsss.mc.white.white_mc_profile`; each pair then interpolates ``log R`` linearly
+there (no search: the index is computed). Below the grid ``R`` is held, above it ``log R`` continues along the last
+interval. The near-field disc integral ``I_w = int_0^rho0 w(r) 2 pi r R(r) dr`` is a Gauss-Legendre quadrature in
+``r = rho0 t^2`` (128 nodes; smooth even for the ``1/r`` single-scattering peak at the source). Everything is differentiable in
+``sigma_a`` and ``sigma_s'`` through the table model.
+
+Which kernel a scene gets is the scene plan's decision (:func:`choose_bssrdf`): ``white-oblique`` where oblique tables
+exist for ``(g, eta)``, else ``white`` where a normal-incidence table exists, else the dipole with a warning. The
+tables are looked up by :func:`white_table` only (one place to swap in another table family).
+"""
+
+from __future__ import annotations
+
+import math
+from pathlib import Path
+
+import equinox as eqx
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from jaxsss.medium import Medium
+
+__all__ = ["BSSRDFS", "GRID_PER_DECADE", "OBLIQUE_MUS", "WhiteKernel", "chandrasekhar_h", "choose_bssrdf",
+           "exit_distribution", "exit_radiance_nodes", "hat_weights", "surface_tangents",
+           "incident_flux", "oblique_dir", "oblique_pairs", "white_kernel", "white_table", "white_tables"]
+
+BSSRDFS = ("auto", "dipole", "white", "white-oblique")
+"""The values of the ``bssrdf`` option (``"auto"``: the plan chooses)."""
+OBLIQUE_DIR = Path(__file__).resolve().parent / "data"
+OBLIQUE_MUS = (0.75, 0.5, 0.25, 0.1)
+"""Incidence cosines (in air) of the oblique tables, besides normal incidence."""
+KERNEL_MUS = (0.5, 0.1)
+"""The oblique nodes the ``white-oblique`` kernel uses (each costs one profile per pair and channel). Two are enough:
+against the skin1 reference all four gave mare_lit 0.061 / 0.045 / 0.043 and sums 0.960 / 0.981 / 0.995 in 11.7 s
+(compile 103 s), these two 0.057 / 0.043 / 0.044 and 0.966 / 0.991 / 1.008 in 3.1 s (compile 42 s); docs/path_tracer.md."""
+SHIFT_ALBEDO = (0.3, 0.5, 0.7, 0.8, 0.9, 0.97, 0.99)
+SHIFT_RATIO = ((0.577, 0.660, 0.775, 0.898),
+               (0.555, 0.637, 0.758, 0.880),
+               (0.586, 0.670, 0.792, 0.898),
+               (0.635, 0.715, 0.817, 0.911),
+               (0.711, 0.776, 0.869, 0.936),
+               (0.801, 0.858, 0.918, 0.970),
+               (0.872, 0.926, 0.946, 0.973))
+"""The forward shift of the profile of light entering at ``theta_t``, as a multiple of ``sin(theta_t) / sigma_t'``:
+rows the albedo ``alpha'`` of :data:`SHIFT_ALBEDO`, columns the incidence cosines of :data:`OBLIQUE_MUS`. Measured
+as the first moment of the exit positions in Monte Carlo (``jaxsss.mc.simulate`` with ``xy_edges``, 1e5 photons,
+g = 0, eta = 1; ``python -m jaxsss.render.make_oblique_tables --shifts`` reprints it). Wang and Jacques' diffusion
+estimate ``3 D sin theta_t`` would be 1 everywhere: it overestimates the shift of absorbing media at steep incidence
+by up to 45%. Interpolated linearly in ``alpha'`` (held beyond the ends)."""
+FORWARD_G = 0.5
+"""``"auto"`` keeps the dipole from this ``g`` up: the exit distribution (:func:`exit_distribution`) is isotropic
+scattering's, and for g = 0.9 the oblique tables put forward-grazing light where the eye sees it (measured against
+Mitsuba's g09_sphere: white-oblique 0.39-0.51 mean relative error, white and dipole 0.18-0.21; docs/path_tracer.md)."""
+GRID_RHO_MIN = 1e-3
+GRID_RHO_MAX = 10**3.5
+GRID_PER_DECADE = 40
+"""Nodes per decade of the per-image profile grid in ``log(r sigma_s)``: linear interpolation of ``log R`` there is
+within ~0.1% of the table model where ``R`` matters (module docstring)."""
+_GL_X, _GL_W = np.polynomial.legendre.leggauss(128)  # the interpolant has kinks at its nodes: 48 was 0.7% off
+_GL_T, _GL_W = 0.5 * (_GL_X + 1.0), 0.5 * _GL_W  # nodes and weights on [0, 1]
+
+
+def oblique_dir(mu: float) -> Path:
+    """The directory of the oblique tables at incidence cosine ``mu`` (file names as :mod:`jaxsss.mc.white`'s)."""
+    return OBLIQUE_DIR / f"oblique_mu{mu:.2f}"
+
+
+def oblique_pairs() -> list[tuple[float, float]]:
+    """The ``(g, n)`` pairs that have a table at every incidence of :data:`OBLIQUE_MUS`."""
+    from jaxsss.mc.white import available_white_tables
+
+    sets = [set(available_white_tables(oblique_dir(mu))) for mu in OBLIQUE_MUS]
+    return sorted(set.intersection(*sets))
+
+
+def white_table(g: float, n: float, mu: float = 1.0):
+    """The white Monte Carlo table for anisotropy ``g``, index ``n`` (ambient 1) and incidence cosine ``mu``, or
+    None when there is none. The renderer's one lookup (``g`` and ``n`` rounded to 2 decimals, as the file names)."""
+    from jaxsss.mc.white import available_white_tables, load_white_table
+
+    directory = None if mu == 1.0 else oblique_dir(mu)
+    key = (round(float(g), 2), round(float(n), 2))
+    if key not in available_white_tables(directory):
+        return None
+    return load_white_table(*key, directory=directory)
+
+
+def white_tables(g: float, n: float, oblique: bool) -> tuple[tuple[float, ...], tuple] | None:
+    """``(mus, tables)`` for the ``white`` (normal incidence only) or ``white-oblique`` kernel (:data:`KERNEL_MUS`),
+    or None when a table is missing."""
+    mus = (1.0,) + (KERNEL_MUS if oblique else ())
+    tables = tuple(white_table(g, n, mu) for mu in mus)
+    if any(t is None for t in tables):
+        return None
+    return mus, tables
+
+
+def choose_bssrdf(medium: Medium, request: str = "auto") -> tuple[str, str]:
+    """``(kernel, reason)``: the BSSRDF kernel for ``medium`` and the plan's one-line reason.
+
+    ``request`` is one of :data:`BSSRDFS`; ``"auto"`` takes the most accurate kernel that has tables for the
+    medium's ``(g, eta)``. A request whose tables are missing is a ``ValueError`` naming the available pairs."""
+    if request not in BSSRDFS:
+        raise ValueError(f"bssrdf={request!r} is not one of {', '.join(BSSRDFS)}")
+    eta, g = np.asarray(medium.eta), 0.0 if medium.g is None else np.asarray(medium.g)
+    if request == "dipole":
+        return "dipole", "requested: the dipole plus the Hanrahan-Krueger single-scattering term"
+    if eta.ndim or np.ndim(g) or eta.size != 1:
+        if request != "auto":
+            raise ValueError(f"bssrdf={request!r} needs scalar eta and g (one table per medium)")
+        return "dipole", "WARNING: eta or g varies per channel; no white table: the dipole (up to ~25% off transport)"
+    g, eta = float(g), float(eta)
+    has_oblique = (round(g, 2), round(eta, 2)) in oblique_pairs()
+    has_normal = white_table(g, eta) is not None
+    if request == "white-oblique" and not has_oblique or request == "white" and not has_normal:
+        from jaxsss.mc.white import available_white_tables
+
+        pairs = oblique_pairs() if request == "white-oblique" else available_white_tables()
+        raise ValueError(f"bssrdf={request!r}: no table for g={g:g}, eta={eta:g}; available (g, n): {pairs}")
+    exit_why = ("Chandrasekhar's exit distribution (eta = 1)" if exit_model_for(medium) == "chandrasekhar" else
+                "a Lambertian exit through the Fresnel boundary")
+    if request == "auto" and g >= FORWARD_G:
+        return "dipole", (f"g = {g:g} >= {FORWARD_G:g}: no exit model for forward scattering; against Mitsuba (g09_sphere) "
+                          "the white profiles are no better than the dipole plus single scattering, which is cheaper")
+    if request == "auto":
+        request = "white-oblique" if has_oblique else "white" if has_normal else "dipole"
+    if request == "white-oblique":
+        return request, (f"white Monte Carlo profiles (g={g:g}, n={eta:g}) at incidence cos 1, "
+                         f"{', '.join(f'{m:g}' for m in KERNEL_MUS)}, shifted forward: every scattering order, "
+                         f"grazing light's stronger response (terminator); {exit_why}")
+    if request == "white":
+        why = "no oblique tables for this pair" if not has_oblique else "requested"
+        return request, (f"white Monte Carlo profile (g={g:g}, n={eta:g}), normal incidence only ({why}): every "
+                         f"scattering order, but grazing light is treated as normal (terminator too dark); {exit_why}")
+    return "dipole", (f"WARNING: no white Monte Carlo table for g={g:g}, eta={eta:g}: the dipole plus single "
+                      "scattering (up to ~25% off transport); make one with python -m jaxsss.mc.make_white_tables")
+
+
+def exit_model_for(medium: Medium) -> str:
+    """The exit distribution of a white kernel: ``"chandrasekhar"`` at an index-matched boundary (``eta = 1``),
+    else ``"fresnel"`` (Lambertian through the Fresnel boundary); see :func:`exit_radiance_nodes`."""
+    return "chandrasekhar" if float(np.asarray(medium.eta)) == 1.0 else "fresnel"
+
+
+def hat_weights(mu, mus):
+    """``(..., K)`` linear interpolation weights of ``mu`` (any shape) between the descending nodes ``mus``; held at
+    the last node below it (and at the first above 1). The weights sum to 1."""
+    nodes = jnp.asarray(mus)
+    if nodes.shape[0] == 1:
+        return jnp.ones(jnp.shape(mu) + (1,))
+    m = jnp.clip(mu, nodes[-1], nodes[0])[..., None]
+    upper, lower = nodes[:-1], nodes[1:]  # interval k: [lower_k, upper_k]
+    t = (m - lower) / (upper - lower)  # 1 at upper, 0 at lower
+    inside = (m <= upper) & (m >= lower)
+    # Node j collects t from interval j - 1 ... written as: weight to the upper node and to the lower node.
+    w_up = jnp.where(inside, t, 0.0)
+    w_lo = jnp.where(inside, 1.0 - t, 0.0)
+    w = jnp.pad(w_up, [(0, 0)] * (w_up.ndim - 1) + [(0, 1)]) + jnp.pad(w_lo, [(0, 0)] * (w_lo.ndim - 1) + [(1, 0)])
+    # A mu on a node lies in two intervals: normalise.
+    return w / jnp.sum(w, axis=-1, keepdims=True)
+
+
+def _diffuse_weights(mus):
+    """``(K,)`` node weights of diffuse light: ``int_0^1 h_k(mu) 2 mu dmu`` (cosine-weighted hemisphere)."""
+    t, w = np.polynomial.legendre.leggauss(64)
+    mu = 0.5 * (t + 1.0)
+    return jnp.sum(hat_weights(jnp.asarray(mu), mus) * (w * mu)[:, None], axis=0)
+
+
+def incident_flux(mus, areas, light_cos, light_irradiance, indirect=None, texture=None, tangent=None):
+    """``(N, K, C)`` incident flux of each irradiance sample split over the angle nodes ``mus``, W; with
+    ``tangent`` ``(N, 4, K, C)``, the flux and the flux-weighted tangential travel directions.
+
+    ``Phi_pk = A_p t_p (sum_l h_k(cos_lp) E_lp + d_k E_ind)``: no Fresnel factor (the white tables are per incident
+    photon, entry transmittance included); ``d_k`` are the diffuse weights. ``V_pk = A_p t_p sum_l h_k(cos_lp) E_lp
+    v_lp`` with ``tangent`` ``v`` ``(N, L, 3)``: each light's travel direction inside projected on the surface
+    (length ``sin theta_t``; diffuse light has none). Other arguments as
+    :func:`jaxsss.render.radiance.transmitted_flux`."""
+    h = hat_weights(jnp.clip(light_cos, 0.0, 1.0), mus)  # (N, L, K)
+    e = jnp.einsum("nlk,nlc->nkc", h, light_irradiance)
+    if indirect is not None:
+        e = e + _diffuse_weights(mus)[None, :, None] * indirect[:, None, :]
+    scale = areas[:, None, None] * (1.0 if texture is None else texture[:, None, :])
+    if tangent is None:
+        return scale * e
+    v = jnp.einsum("nlk,nlc,nlj->njkc", h, light_irradiance, tangent)
+    return jnp.concatenate([(scale * e)[:, None], scale[:, None] * v], axis=1)
+
+
+def surface_tangents(to_light, normals, eta):
+    """``(N, L, 3)``: the travel direction inside of light from ``to_light`` ``(N, L, 3)``, projected on the surface
+    with normals ``(N, 3)``: ``-(l - (l . n) n) / eta``, of length ``sin theta_t`` (Snell)."""
+    ln = np.einsum("nlj,nj->nl", to_light, normals)
+    return -(to_light - ln[..., None] * normals[:, None, :]) / eta
+
+
+_H_X, _H_W = np.polynomial.legendre.leggauss(64)
+_H_TH, _H_W = (_H_X + 1.0) * np.pi / 4.0, _H_W * np.pi / 4.0  # theta nodes and weights on (0, pi/2)
+_MU_X, _MU_W = np.polynomial.legendre.leggauss(32)
+_MU_T, _MU_W = 0.5 * (_MU_X + 1.0), 0.5 * _MU_W  # mu nodes and weights on (0, 1)
+
+
+def chandrasekhar_h(mu, albedo):
+    """Chandrasekhar's H-function of isotropic scattering, ``H(mu)`` for single-scattering albedo ``albedo`` in
+    ``[0, 1)``; ``mu`` and ``albedo`` broadcast.
+
+    Explicit form (Chandrasekhar 1960, Radiative Transfer, Eq. V.1.43 specialised to isotropic scattering):
+    ``ln H(mu) = -(mu / pi) int_0^{pi/2} ln(1 - a theta cot theta) / (cos^2 theta + mu^2 sin^2 theta) dtheta``,
+    64-node Gauss-Legendre (within 1e-6 of the iterated integral equation for ``a <= 0.99``)."""
+    th = jnp.asarray(_H_TH)
+    w = jnp.asarray(_H_W)
+    mu = jnp.asarray(mu)[..., None]
+    a = jnp.asarray(albedo)[..., None]
+    # H-function, explicit integral form.
+    f = jnp.log1p(-a * th / jnp.tan(th)) / (jnp.cos(th) ** 2 + mu * mu * jnp.sin(th) ** 2)
+    return jnp.exp(-mu[..., 0] / jnp.pi * jnp.sum(w * f, axis=-1))
+
+
+def exit_distribution(mu_o, mu_i, albedo):
+    """``X(mu_o | mu_i)``: the radiance leaving a semi-infinite isotropic index-matched medium towards ``mu_o``, relative
+    to a Lambertian exit of the same exitance, for light incident at ``mu_i`` (``int_0^1 X 2 mu_o dmu_o = 1``).
+
+    From Chandrasekhar's exact reflection function ``f_r = (a / 4 pi) H(mu_o) H(mu_i) / (mu_o + mu_i)`` (every order):
+    ``X = pi f_r / A(mu_i)`` with the directional albedo ``A(mu_i) = (a / 2) H(mu_i) int_0^1 H(mu) mu / (mu + mu_i)
+    dmu``; ``a`` and ``H(mu_i)`` cancel, so ``X = H(mu_o) / (2 (mu_o + mu_i) int_0^1 H(mu) mu / (mu + mu_i) dmu)``.
+    ``mu_o`` ``(Q,)``, ``mu_i`` ``(K,)``, ``albedo`` ``(C,)`` give ``(Q, K, C)``."""
+    t, w = jnp.asarray(_MU_T), jnp.asarray(_MU_W)
+    mu_i = jnp.asarray(mu_i)
+    h_t = chandrasekhar_h(t[:, None], albedo)  # (T, C)
+    norm = jnp.einsum("t,tc,kt->kc", w, h_t, t[None, :] / (t[None, :] + mu_i[:, None]))  # (K, C)
+    h_o = chandrasekhar_h(mu_o[:, None], albedo)  # (Q, C)
+    return h_o[:, None, :] / (2.0 * (mu_o[:, None, None] + mu_i[None, :, None]) * norm[None])
+
+
+class WhiteKernel(eqx.Module):
+    """White Monte Carlo profiles of one material on a log grid, ``K`` incidence nodes (module docstring).
+
+    ``log_R``: ``(K, G, C)`` log of the optical-unit profile ``R(rho) / sigma_s^2`` at ``rho_j = GRID_RHO_MIN 10^(j /
+    GRID_PER_DECADE)``; ``sigma_s``: ``(C,)`` 1/mm; ``shift_length``: ``(K, C)`` mm, the forward shift of each
+    node's profile per unit ``sin theta_t`` (None: radial profiles only). With a shift the flux of a sample or node is
+    ``(4, K, C)``: the incident flux ``F_k`` and the flux-weighted tangential travel direction ``V_k`` (3 rows)."""
+
+    log_R: jax.Array
+    sigma_s: jax.Array
+    shift_length: jax.Array | None = None
+
+    def profile(self, r):
+        """``R_k(r)`` in 1/mm^2 at distances ``r`` (mm): ``(P,)`` gives ``(P, K, C)``; ``(P, K, C)`` is evaluated
+        element by element."""
+        x0, dx = math.log(GRID_RHO_MIN), math.log(10.0) / GRID_PER_DECADE
+        n_k, n_grid, n_c = self.log_R.shape
+        if r.ndim == 1:
+            r = jnp.broadcast_to(r[:, None, None], (r.shape[0], n_k, n_c))
+        x = (jnp.log(jnp.maximum(r * self.sigma_s, GRID_RHO_MIN)) - x0) / dx  # (P, K, C)
+        node = jnp.clip(jnp.floor(x), 0.0, n_grid - 2.0)
+        i = node.astype(jnp.int32)
+        t = x - node
+        k, c = jnp.arange(n_k)[None, :, None], jnp.arange(n_c)[None, None, :]
+        y0, y1 = self.log_R[k, i, c], self.log_R[k, i + 1, c]
+        # Linear interpolation of log R in log(r sigma_s); R = sigma_s^2 R_optical.
+        return jnp.exp(y0 + t * (y1 - y0)) * self.sigma_s**2
+
+    def value_shape(self, flux_shape):
+        return tuple(flux_shape[-2:])
+
+    def _distance(self, delta, flux):
+        """``(r, F)``: the distance from each node's (shifted) point of entry, ``(P,)`` or ``(P, K, C)`` mm, and the
+        incident flux ``(P, K, C)``; ``s_k = shift_length V_k / F_k`` is the entity's mean forward shift."""
+        if self.shift_length is None:
+            return jnp.sqrt(jnp.maximum(jnp.sum(delta * delta, axis=-1), 1e-300)), flux
+        f, v = flux[:, 0], flux[:, 1:]  # (P, K, C), (P, 3, K, C)
+        s = self.shift_length * v / jnp.where(f > 0, f, 1.0)[:, None]
+        d = delta[:, :, None, None] - s
+        # Oblique incidence: the profile about the shifted point of entry.
+        return jnp.sqrt(jnp.maximum(jnp.sum(d * d, axis=1), 1e-300)), f
+
+    def pair(self, delta, flux):
+        """``(P, K, C)``: ``R_k(|delta - s_k|) F_k`` for offsets ``delta = x - P`` ``(P, 3)`` mm (``s_k = 0`` without
+        a shift). The nodes stay apart: their exit distributions differ (:func:`exit_radiance_nodes`)."""
+        r, f = self._distance(delta, flux)
+        return self.profile(r) * f
+
+    def near_terms(self, delta, flux, area, rho0):
+        """A near pair's ``(point, w F, w A)``, each ``(P, K, C)``, with the near-field weight at the distance from
+        the *shifted* entry point, so that the point part ``(1 - w) R`` vanishes where ``R`` peaks
+        (:func:`jaxsss.render.radiance.exitance_near`)."""
+        from jaxsss.render.radiance import near_weight
+
+        r, f = self._distance(delta, flux)
+        if r.ndim == 1:
+            r = jnp.broadcast_to(r[:, None, None], f.shape)
+        w = near_weight(r, rho0)
+        return (1.0 - w) * self.profile(r) * f, w * f, w * area[:, None, None]
+
+    def weighted_disc(self, rho0):
+        """``(K, C)``: ``I_w = int_0^rho0 w(r) 2 pi r R_k(r) dr`` with the near-field weight ``w`` of
+        :func:`jaxsss.render.radiance.near_weight` (substitution ``r = rho0 t^2``, 128-node Gauss-Legendre: within 3e-4 of a fine trapezoid rule)."""
+        from jaxsss.render.radiance import near_weight
+
+        t, w = jnp.asarray(_GL_T), jnp.asarray(_GL_W)
+        r = rho0 * t * t
+        # dr = 2 rho0 t dt.
+        f = (near_weight(r, rho0) * 2.0 * jnp.pi * r * 2.0 * rho0 * t * w)[:, None, None] * self.profile(r)
+        return jnp.sum(f, axis=0)
+
+    def disc(self, spread, rho0):
+        """``(Q, K, C)``: ``E_k I_w,k`` for the near field's mean incident flux density ``spread`` ``(Q, K, C)``."""
+        return spread * self.weighted_disc(rho0)
+
+
+@eqx.filter_jit
+def white_kernel(medium: Medium, tables, mus: tuple = (1.0,) + OBLIQUE_MUS, shift: bool = False) -> WhiteKernel:
+    """Tabulate the profiles of ``tables`` (one per incidence cosine of ``mus``: 1, then oblique nodes) for ``medium``
+    on the grid (differentiable in ``sigma_a`` and ``sigma_s'``). ``shift``: shift the oblique profiles forward
+    (:data:`SHIFT_RATIO`; the samples' flux then carries the travel directions)."""
+    from jaxsss.mc.white import white_mc_profile
+
+    n_grid = round(math.log10(GRID_RHO_MAX / GRID_RHO_MIN) * GRID_PER_DECADE) + 1
+    rho = GRID_RHO_MIN * 10.0 ** (np.arange(n_grid) / GRID_PER_DECADE)
+    g = tables[0].g
+    sigma_a = jnp.atleast_1d(medium.sigma_a)
+    sigma_s_prime = jnp.broadcast_to(jnp.atleast_1d(medium.sigma_s_prime), sigma_a.shape)
+    sigma_a = jnp.broadcast_to(sigma_a, sigma_s_prime.shape)
+    sigma_s = sigma_s_prime / (1.0 - g)
+    r = jnp.asarray(rho)[:, None] / sigma_s  # (G, C) mm
+    # Floored where R underflows (strong absorption far out): log 0 would make the interpolation NaN.
+    log_R = jnp.stack([jnp.log(jnp.maximum(white_mc_profile(r, sigma_a, sigma_s_prime, t), 1e-300)) for t in tables])
+    length = None
+    if shift:
+        sigma_t_prime = sigma_a + sigma_s_prime
+        ratio = jnp.stack([jnp.ones_like(sigma_t_prime)] + [  # normal incidence: no shift to scale
+            jnp.interp(sigma_s_prime / sigma_t_prime, jnp.asarray(SHIFT_ALBEDO),
+                       jnp.asarray(SHIFT_RATIO)[:, OBLIQUE_MUS.index(mu)]) for mu in mus[1:]])
+        # Oblique incidence: forward shift (SHIFT_RATIO) sin(theta_t) / sigma_t'.
+        length = ratio / sigma_t_prime
+    return WhiteKernel(log_R - 2.0 * jnp.log(sigma_s), sigma_s, length)
+
+
+def exit_radiance_nodes(medium: Medium, exitance, cos_o, mus, model: str):
+    """Radiance towards the eye, ``(Q, C)`` W/(mm^2 sr), from the exitance of each incidence node ``(Q, K, C)``.
+
+    ``model="chandrasekhar"`` (index-matched boundary): ``L = sum_k M_k X(mu_o | mu_k) / pi`` with
+    :func:`exit_distribution` at the similarity albedo ``sigma_s' / (sigma_a + sigma_s')`` (exact for ``g = 0``;
+    the isotropic equivalent otherwise). ``"fresnel"``: the renderer's Lambertian exit through the boundary,
+    ``F_t(cos_o) sum_k M_k / (pi F_dt,ext)`` (:func:`jaxsss.render.radiance.exit_radiance`)."""
+    from jaxsss.render.radiance import exit_radiance
+
+    if model == "fresnel":
+        return exit_radiance(medium, jnp.sum(exitance, axis=1), cos_o)
+    sigma_s_prime = jnp.broadcast_to(medium.sigma_s_prime, exitance.shape[-1:])
+    albedo = sigma_s_prime / (medium.sigma_a + sigma_s_prime)
+    x = exit_distribution(jnp.clip(cos_o, 0.0, 1.0), jnp.asarray(mus), albedo)
+    # Exit by Chandrasekhar's reflection function, node by node.
+    return jnp.sum(exitance * x, axis=1) / jnp.pi

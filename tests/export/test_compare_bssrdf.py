@@ -1,0 +1,44 @@
+"""jaxsss's default renderer against the committed Mitsuba reference (tests/export/references/skin1_sphere): a test
+that fails when the image error grows.
+
+The scene: skin1 (Jensen 2001) on a 20 mm sphere, eta = 1, g = 0, one point light, 64 x 64; the reference is
+Mitsuba 3's volpathmis at 8192 spp (1.1-1.9% per-pixel noise; its .json sidecar). The default kernel for this medium
+is ``white-oblique`` (jaxsss.render.bssrdf). Goals of issue 17: mare_lit <= 5% per channel, <= 15% in the terminator
+band, summed radiance within 3%. Achieved (2026-11-23, the default's two oblique nodes): mare_lit 0.057 / 0.043 /
+0.044, band 0.100 / 0.116 / 0.142, sum ratio 0.966 / 0.991 / 1.008 (with four nodes: 0.061 / 0.045 / 0.043, band
+0.101 / 0.117 / 0.144, sums 0.960 / 0.981 / 0.995). Met: mare_lit in G and B, the band, the sums in G and B. Missed:
+mare_lit in R by 0.7 points, the R sum by 0.4 points. Where the goal is met the test asserts the goal; where it is
+missed, the worse of the two achieved levels plus about 10% (the render is deterministic: the margin is for platform
+rounding and future table regeneration, not noise). The dipole plus single scattering (the old kernel) fails every
+bound: 0.138 / 0.181 / 0.225, band 0.28-0.38, sums 1.12-1.23.
+"""
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from jaxsss.export.compare import compare_images, pixel_geometry
+from jaxsss.render import load_scene, render
+
+REFERENCES = Path(__file__).parent / "references"
+MARE_LIT_MAX = (0.067, 0.05, 0.05)  # R: achieved 0.057-0.061 + 10%; G, B: the goal
+BAND_MAX = (0.15, 0.15, 0.15)  # the goal (achieved 0.101, 0.117, 0.144)
+SUM_TOL = (0.045, 0.03, 0.03)  # R: achieved 3.4-4.0% + 10%; G, B: the goal (0.9%, 0.8%)
+
+
+@pytest.fixture(scope="module")
+def skin1():
+    scene = load_scene(REFERENCES / "skin1_sphere.toml")
+    data = np.load(REFERENCES / "skin1_sphere.npz")
+    return scene, data["image"].astype(np.float64), data["coverage"].astype(np.float64), pixel_geometry(scene)
+
+
+def test_default_render_is_within_the_achieved_error_of_the_path_tracer(skin1):
+    scene, ref, coverage, pixels = skin1
+    result = render(scene)
+    assert result.report["plan"]["bssrdf"] == "white-oblique"
+    m = compare_images(result.image, ref, pixels, coverage=coverage)
+    assert np.all(np.array(m["mare_lit"]) <= MARE_LIT_MAX), m["mare_lit"]
+    assert np.all(np.array(m["mare_band"]) <= BAND_MAX), m["mare_band"]
+    assert np.all(np.abs(np.array(m["sum_ratio"]) - 1.0) <= SUM_TOL), m["sum_ratio"]
