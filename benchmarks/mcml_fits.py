@@ -88,14 +88,13 @@ def _multipole(run, data):
 
 
 def _mc(run, data):
-    from jaxsss.mc import available_white_tables
+    from fitting.models import has_white_table
 
     layer = run.layers[-1]
     if not run.semi_infinite or len(run.layers) > 1:
         return "the white-MC model is a homogeneous half-space"
-    key = (round(layer.g, 2), round(run.eta, 2))
-    if key not in [(round(g, 2), round(n, 2)) for g, n in available_white_tables()]:
-        return f"no white Monte Carlo table for (g={layer.g:g}, eta={run.eta:g})"
+    if not has_white_table(layer.g, run.eta):
+        return f"(g={layer.g:g}, eta={run.eta:g}) is outside the white Monte Carlo family"
     return {"model": "mc", "R": data.R, "R_stderr": data.R_stderr, "g": layer.g}
 
 
