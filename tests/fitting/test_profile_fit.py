@@ -197,6 +197,24 @@ def test_large_batches_in_chunks_equal_one_call(monkeypatch):
         np.testing.assert_allclose(np.asarray(getattr(chunked, name)), np.asarray(getattr(whole, name)), rtol=1e-9)
 
 
+def test_exported_fit_is_written_and_reused(monkeypatch, tmp_path):
+    """Start-up: the fused fit is serialised with jax.export; a new process (here: the in-memory table cleared) loads
+    it instead of tracing, and gives the same fit, status included."""
+    from fitting import profile_fit
+
+    monkeypatch.setattr(profile_fit, "_export_dir", lambda: tmp_path)
+    monkeypatch.setattr(profile_fit, "_EXPORTED", {})
+    first = fitting.fit_profile(R_GRID, dipole_data(), eta=ETA)
+    files = list(tmp_path.glob("fit-*.bin"))
+    assert len(files) == 1
+    monkeypatch.setattr(profile_fit, "_EXPORTED", {})
+    before = dict(_kernel.TRACES)
+    again = fitting.fit_profile(R_GRID, dipole_data(), eta=ETA)
+    assert _kernel.TRACES == before  # deserialised, not traced
+    assert again.converged.all() and again.messages() == first.messages()
+    np.testing.assert_array_equal(again.sigma_a, first.sigma_a)
+
+
 def test_second_call_with_new_values_does_not_retrace(marble_fit):
     fitting.fit_profile(R_GRID, dipole_data(), eta=ETA)
     before = dict(_kernel.TRACES)
