@@ -25,11 +25,16 @@ both reported.
 
 from __future__ import annotations
 
+import os
 import sys
 
-import numpy as np
+# scipy's side single-threaded (before NumPy loads OpenBLAS): its problems are tiny, and OpenBLAS's spinning threads
+# otherwise add CPU time (and compete with XLA) without speeding anything up.
+os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 
-from benchmarks._harness import make_row, parse_args, time_call, time_interleaved, write_results
+import numpy as np  # noqa: E402
+
+from benchmarks._harness import make_row, parse_args, time_call, time_interleaved, write_results  # noqa: E402
 
 NAME = "fit_speed"
 ETA = 1.3

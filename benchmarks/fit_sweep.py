@@ -135,7 +135,9 @@ def run(models, n, seed=0, progress=None):
                     "kw": {k: (v.tolist() if isinstance(v, np.ndarray) else v) for k, v in case["kw"].items()
                            if k != "R_stderr"}})
             if progress and (i + 1) % progress == 0:
-                print(f"  {model}: {i + 1}/{n}", flush=True)
+                print(f"  {model}: {i + 1}/{n}: {counts['fits']} fits, reliable {counts['reliable']}, wrong(5se) "
+                      f"{counts['wrong5']} of which reliable {counts['wrong5_reliable']}, {counts['seconds']:.0f} s",
+                      flush=True)
         stats[model] = counts
     return stats
 
@@ -154,7 +156,7 @@ def main(argv=None) -> int:
     models = tuple(own.models.split(",")) if own.models else tuple(fitting.FORWARD_MODELS)
     # Compile every model's configurations outside the timing (one small sweep first).
     run(models, 2, seed=99)
-    stats = run(models, n, seed=1, progress=None if args.quick else 100)
+    stats = run(models, n, seed=1, progress=max(1, n // 10))
     rows = []
     for model, s in stats.items():
         frac = s["wrong5_reliable"] / s["fits"]

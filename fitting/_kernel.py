@@ -35,7 +35,7 @@ import jax.numpy as jnp
 import optimistix as optx
 
 from fitting._dipole_jac import dipole_value_and_jac
-from fitting.result import CHI2_SIGMAS
+from fitting.result import CHI2_P
 from fitting.models import entry_transmittance, model_profiles, resolve_model
 from fitting.solvers import resolve_solver
 
@@ -458,8 +458,8 @@ def finish(thetas, results, steps, stationary, mask, r, y, se, eta, d, cfg: Conf
     floor of noisy data agree to ~1e-15 while the parameters of a stop by the reduction test may differ by 1e-9).
     Suspect (``suspect`` > 0, a bit field):
 
-    - 1, chi^2: standard errors were given for every fitted point and the reduced chi^2 exceeds
-      ``1 + CHI2_SIGMAS sqrt(2 / dof)`` (the residuals are larger than the noise: a wrong minimum or a wrong model);
+    - 1, chi^2: standard errors were given for every fitted point and a chi^2 this large has a probability below
+      ``CHI2_P`` (the residuals are larger than the noise: a wrong minimum or a wrong model);
     - 2, tie: another start converged to a different minimum (more than ``ALT_SEPARATION`` and 3 standard errors
       apart in ``log sigma_a`` or ``log sigma_s'``) whose cost is within ``ALT_DCHI2`` units of chi^2 of the chosen
       one, in the fit's own residual variance: the data do not pick one;
@@ -488,7 +488,8 @@ def finish(thetas, results, steps, stationary, mask, r, y, se, eta, d, cfg: Conf
     n = out["n_points"]
     dof = jnp.maximum(n - p, 1.0)
     all_se = jnp.all(jnp.where(mask, se > 0.0, True))
-    chi2_bad = all_se & (out["reduced_chi2"] > 1.0 + CHI2_SIGMAS * jnp.sqrt(2.0 / dof))
+    # P(chi^2_dof >= observed) = Q(dof / 2, chi^2 / 2), the regularised upper incomplete gamma function.
+    chi2_bad = all_se & (jax.scipy.special.gammaincc(0.5 * dof, 0.5 * out["reduced_chi2"] * dof) < CHI2_P)
     s2 = jnp.maximum(out["reduced_chi2"], jnp.finfo(theta.dtype).tiny)
     se_log = jnp.stack([out["sigma_a_stderr"] / sa, out["sigma_s_prime_stderr"] / ss])
     sep = jnp.abs(thetas[:, :2] - theta[None, :2])  # (S, 2)

@@ -212,8 +212,15 @@ def _run(stage, cfg, shard, r, *per_problem):
     per_problem = jax.tree_util.tree_map(np.asarray, per_problem)
     P_ = jax.tree_util.tree_leaves(per_problem)[0].shape[0]
     mesh = _mesh(P_) if shard in (None, True) else None
+    if mesh is None and P_ > RUN_CHUNK:
+        # Large batches in chunks of RUN_CHUNK problems (the last one padded to it: one compilation): the start
+        # candidates' predictions alone are 180 x 32 values per problem (1.4 GB for 30,000 problems), and one call
+        # of that size hung in XLA's CPU runtime here (batch 10,000 x 3, every thread idle).
+        parts = [_run(stage, cfg, False, r, *jax.tree_util.tree_map(lambda x: x[i:i + RUN_CHUNK], per_problem))
+                 for i in range(0, P_, RUN_CHUNK)]
+        return jax.tree_util.tree_map(lambda *xs: np.concatenate(xs), *parts)
     n_dev = 1 if mesh is None else mesh.size
-    pad = _bucket(P_, n_dev) - P_
+    pad = (RUN_CHUNK if P_ > RUN_CHUNK // 2 and mesh is None else _bucket(P_, n_dev)) - P_
     if pad:
         per_problem = jax.tree_util.tree_map(lambda x: np.concatenate([x, np.repeat(x[-1:], pad, axis=0)]),
                                              per_problem)
@@ -276,7 +283,9 @@ def _exported_fit(cfg, r, per_problem):
     import optimistix as optx
 
     directory = _export_dir()
-    if directory is None or importlib.util.find_spec("flatbuffers") is None:  # jax.export serialises with it
+    # Only the shipped models: the digest covers jaxsss and fitting, not a user's registered model's own code.
+    own = resolve_model(cfg.model).evaluate.__module__.split(".")[0] in ("fitting", "jaxsss")
+    if directory is None or not own or importlib.util.find_spec("flatbuffers") is None:  # export needs flatbuffers
         return _compiled("fit", cfg)(r, *per_problem)
     shapes = [(np.shape(x), str(np.asarray(x).dtype)) for x in (r, *per_problem)]
     key = hashlib.sha256(repr((cfg, shapes)).encode()).hexdigest()[:24]
@@ -317,6 +326,7 @@ def _exported_fit(cfg, r, per_problem):
 # Batches of more than FUSED_MAX problems (profiles x channels) run the LM loop in blocks of BLOCK_STEPS iterations
 # over at most SLOTS problems at a time; a converged problem leaves its slot and the next start takes it, so the
 # batch costs about its mean iteration count, not its largest (issue 18: 143 iterations against a mean of 18.5).
+RUN_CHUNK = 4096  # problems per call of the starts and finish stages (see _run)
 R_MAX_SLACK = 1.25  # a fit's range may end this factor past the model's r_max_ld l_d at the solution, no more
 FUSED_MAX = 64
 SLOTS = 512

@@ -19,8 +19,19 @@ SUSPECT_TIE = 2
 """Bit of :attr:`ProfileFit.suspect`: another start reached a different minimum of about the same cost."""
 SUSPECT_STRUCTURE = 4
 """Bit of :attr:`ProfileFit.suspect`: no standard errors, and the residuals are a smooth misfit rather than noise."""
-CHI2_SIGMAS = 5.0
-"""The chi^2 check fires above ``1 + CHI2_SIGMAS sqrt(2 / dof)`` (chi^2 / dof has standard deviation sqrt(2 / dof))."""
+CHI2_P = 1e-3
+"""The chi^2 check fires when a chi^2 this large has a probability below ``CHI2_P`` for correct standard errors (one
+false alarm in 1000 correct fits: a warning to read costs less than a wrong fit reported reliable). It was
+``1 + 5 sqrt(2 / dof)`` (the normal approximation, p ~ 1e-5 to 1e-4), which at 37 degrees of freedom let a reduced
+chi^2 of 2.0 (p = 3e-4) pass: a dipole fit of salt_powder (relative, 1.9% noise, r >= 1.9 l_d) in a wrong basin,
+sigma_a 0.055 against 0.243, reported reliable (fit_sweep, 3000 dipole fits, issue 18)."""
+
+
+def chi2_limit(dof):
+    """The reduced chi^2 above which the check fires, for ``dof`` degrees of freedom (NumPy, host side)."""
+    from scipy.stats import chi2
+
+    return chi2.isf(CHI2_P, dof) / dof
 
 CORRELATION_LIMIT = 0.999
 """``|corr(sigma_a, sigma_s')|`` above this: the data do not separate the two parameters. Well-posed fits of absolute
@@ -176,7 +187,7 @@ class ProfileFit(eqx.Module):
                 if what == "chi2":
                     # The same degrees of freedom as the check (fitting._kernel.finish): n minus every free parameter.
                     n_par = 2 + int(self.relative) + int(self.free_eta)
-                    lim = 1.0 + CHI2_SIGMAS * np.sqrt(2.0 / max(n[i] - n_par, 1))
+                    lim = chi2_limit(max(n[i] - n_par, 1))
                     out.append(
                         f"{int(hit.sum())} of {hit.size} fits are suspect: the residuals exceed the given standard "
                         f"errors (first: fit {i}: reduced chi^2 = {chi2[i]:.3g} > {lim:.3g}); the solution may be a "

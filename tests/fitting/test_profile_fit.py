@@ -181,6 +181,40 @@ def test_batch_equals_loop_over_profiles():
             np.testing.assert_allclose(np.asarray(getattr(batch, name))[b], getattr(single, name), rtol=1e-9)
 
 
+def test_large_batches_in_chunks_equal_one_call(monkeypatch):
+    """Batches above ``RUN_CHUNK`` problems run the starts and finish stages in chunks (the last padded); the chunks
+    give the one call's answer. 30 single-channel profiles with the chunk set to 8 (4 chunks, one compilation)."""
+    from fitting import profile_fit
+
+    rng = np.random.default_rng(8)
+    sa, ss = 0.01 * np.exp(rng.uniform(-1, 1, 30)), 2.0 * np.exp(rng.uniform(-1, 1, 30))
+    data = np.moveaxis(dipole_data(sa, ss), 1, 0) * (1.0 + 0.02 * rng.standard_normal((30, R_GRID.size)))
+    whole = fitting.fit_profiles(R_GRID, data, eta=ETA, warn=False)
+    monkeypatch.setattr(profile_fit, "RUN_CHUNK", 8)
+    chunked = fitting.fit_profiles(R_GRID, data, eta=ETA, warn=False)
+    for name in ("sigma_a", "sigma_s_prime", "sigma_a_stderr", "suspect", "r_cut"):
+        # The same per-problem computation; only the vectorisation width differs.
+        np.testing.assert_allclose(np.asarray(getattr(chunked, name)), np.asarray(getattr(whole, name)), rtol=1e-9)
+
+
+def test_exported_fit_is_written_and_reused(monkeypatch, tmp_path):
+    """Start-up: the fused fit is serialised with jax.export; a new process (here: the in-memory table cleared) loads
+    it instead of tracing, and gives the same fit, status included."""
+    from fitting import profile_fit
+
+    monkeypatch.setattr(profile_fit, "_export_dir", lambda: tmp_path)
+    monkeypatch.setattr(profile_fit, "_EXPORTED", {})
+    first = fitting.fit_profile(R_GRID, dipole_data(), eta=ETA)
+    files = list(tmp_path.glob("fit-*.bin"))
+    assert len(files) == 1
+    monkeypatch.setattr(profile_fit, "_EXPORTED", {})
+    before = dict(_kernel.TRACES)
+    again = fitting.fit_profile(R_GRID, dipole_data(), eta=ETA)
+    assert _kernel.TRACES == before  # deserialised, not traced
+    assert again.converged.all() and again.messages() == first.messages()
+    np.testing.assert_array_equal(again.sigma_a, first.sigma_a)
+
+
 def test_second_call_with_new_values_does_not_retrace(marble_fit):
     fitting.fit_profile(R_GRID, dipole_data(), eta=ETA)
     before = dict(_kernel.TRACES)

@@ -105,3 +105,24 @@ def test_r_min_per_channel_equals_separate_fits():
         np.testing.assert_allclose(np.asarray(both.sigma_a)[c], one.sigma_a, rtol=1e-9)
     with pytest.raises(ValueError, match="r_min"):
         fitting.fit_profile(R, y, eta=ETA, r_min=[1.0, 2.0])
+
+
+def test_chi2_check_uses_the_chi2_distribution():
+    """Standard errors understated by a factor 1.25 (reduced chi^2 ~ 1.6 on 98 dof): p ~ 1e-4, flagged. The earlier
+    normal-approximation limit 1 + 5 sqrt(2 / dof) = 1.71 let such fits pass (the full sweep found a wrong-basin
+    dipole fit at reduced chi^2 2.0 on 37 dof, p = 3e-4, reported reliable)."""
+    from fitting.result import chi2_limit
+
+    rng = np.random.default_rng(5)
+    m = jaxsss.material("marble")
+    sa, ss = np.asarray(m.sigma_a), np.asarray(m.sigma_s_prime)
+    r = np.geomspace(0.02, 10.0, 100) * float(np.max(np.asarray(jaxsss.Medium(sa, ss, ETA).l_d)))
+    clean = dipole(sa, ss, r=r)
+    z = rng.standard_normal(clean.shape)
+    z = (z - z.mean(axis=0)) / z.std(axis=0)  # exactly unit variance per channel: reduced chi^2 ~ 1.25^2 (98/98)
+    y = clean * (1.0 + 0.02 * z)
+    fit = fitting.fit_profile(r, y, eta=ETA, R_stderr=0.016 * clean, warn=False, r_min=0.0)
+    dof = np.asarray(fit.n_points) - 2
+    chi2 = np.asarray(fit.reduced_chi2)
+    assert np.all((chi2 > chi2_limit(dof)) & (chi2 < 1.0 + 5.0 * np.sqrt(2.0 / dof))), chi2  # the premise
+    assert np.all(np.asarray(fit.suspect) & SUSPECT_CHI2) and not fit.reliable.any()
