@@ -151,3 +151,17 @@ def test_profile_fit_imports_leave_out_monte_carlo_and_image_fits():
     proc = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120)
     assert proc.returncode == 0, proc.stderr
     assert proc.stdout.strip() == "[]"
+
+
+@pytest.mark.parametrize("args, match", [
+    (["--model", "dipole"], "--free-g needs --model mc"),
+    (["--model", "mc", "--g", "0.5"], "--g does not apply with --free-g"),
+    (["--model", "mc", "--relative"], "--relative does not apply with --free-g"),
+])
+def test_free_g_user_errors_exit_2_with_one_line(capsys, tmp_path, args, match):
+    csv = tmp_path / "p.csv"
+    csv.write_text("r_mm, R, R_stderr\n0.1, 1.0, 0.01\n0.2, 0.5, 0.01\n0.3, 0.3, 0.01\n0.4, 0.2, 0.01\n")
+    code, out, err = run_cli(capsys, "fit", csv, "--eta", "1.33", "--free-g", *args)
+    assert code == 2 and out == ""
+    lines = err.strip().splitlines()
+    assert len(lines) == 1 and lines[0].startswith("jaxsss: error:") and match in lines[0], err
