@@ -42,3 +42,20 @@ def test_default_render_is_within_the_achieved_error_of_the_path_tracer(skin1):
     assert np.all(np.array(m["mare_lit"]) <= MARE_LIT_MAX), m["mare_lit"]
     assert np.all(np.array(m["mare_band"]) <= BAND_MAX), m["mare_band"]
     assert np.all(np.abs(np.array(m["sum_ratio"]) - 1.0) <= SUM_TOL), m["sum_ratio"]
+
+
+def test_marble_teapot_against_its_path_traced_reference():
+    """Marble (albedo ~0.999) on the watertight teapot, eta 1, one point light; Mitsuba 16384 spp (2.2-2.5% pixel
+    noise, which is part of mare_lit here). Achieved (2026-11-23, white-oblique): mare_lit 0.087 / 0.083 / 0.084,
+    terminator band 0.30 / 0.34 / 0.37 (goal 0.15: missed; the band includes the spout's and handle's shadow edges),
+    sums 1.016 / 1.006 / 0.995 (goal 3%: met). The old dipole + single scattering: mare_lit 0.22-0.23, sums
+    1.17-1.20. Bounds: the goal where met, else the achieved level plus about 10%."""
+    scene = load_scene(REFERENCES / "marble_teapot.toml")
+    data = np.load(REFERENCES / "marble_teapot.npz")
+    ref, coverage = data["image"].astype(np.float64), data["coverage"].astype(np.float64)
+    result = render(scene)
+    assert result.report["plan"]["bssrdf"] == "white-oblique"
+    m = compare_images(result.image, ref, pixel_geometry(scene), coverage=coverage)
+    assert np.all(np.array(m["mare_lit"]) <= 0.096), m["mare_lit"]
+    assert np.all(np.array(m["mare_band"]) <= 0.41), m["mare_band"]
+    assert np.all(np.abs(np.array(m["sum_ratio"]) - 1.0) <= 0.03), m["sum_ratio"]
