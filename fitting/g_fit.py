@@ -117,11 +117,11 @@ def _jacobian(theta, args):
     return jax.jacfwd(_residuals)(theta, args), _residuals(theta, args)
 
 
-def _default_range(r, l_u):
+def _default_range(r):
     """Every radius, except a first bin that straddles the source (centres of equal bins from r = 0)."""
-    dr = 2.0 * r[0]
-    equal_bins = dr > 0 and np.allclose(np.diff(r), dr, rtol=1e-6, atol=0.0)
-    return float(r[1] if equal_bins else r[0]), float(r[-1])
+    from fitting.io import equal_bin_edges
+
+    return float(r[1] if equal_bin_edges(r) is not None else r[0]), float(r[-1])
 
 
 def fit_free_g(r, R=None, *, R_stderr=None, eta: float, r_min: float | None = None, r_max: float | None = None,
@@ -147,7 +147,7 @@ def fit_free_g(r, R=None, *, R_stderr=None, eta: float, r_min: float | None = No
     if R.shape != r.shape or r.ndim != 1 or r.size < 4:
         raise ValueError(f"fit_free_g(r, R): need two 1-D arrays of the same length >= 4, got {r.shape}, {R.shape}")
     wf.check_covered(wf.G_NODES[0], eta, owner="fit_free_g")
-    lo_default, hi_default = _default_range(r, None)
+    lo_default, hi_default = _default_range(r)
     r_min = lo_default if r_min is None else float(r_min)
     r_max = hi_default if r_max is None else float(r_max)
     keep = (r >= r_min) & (r <= r_max) & (R > 0)

@@ -200,6 +200,18 @@ def read_profile_csv(path) -> ProfileData:
     return _to_data(columns, str(path))._replace(r_edges=edges)
 
 
+def equal_bin_edges(r) -> np.ndarray | None:
+    """The edges of equal bins from ``r = 0`` whose centres are the radii ``r`` (binned data such as the ``jaxsss mc``
+    CSV), or ``None`` when ``r`` is not such a set of centres."""
+    r = np.asarray(r, dtype=np.float64)
+    if r.size < 2 or not r[0] > 0:
+        return None
+    step = np.diff(r)
+    if np.allclose(step, step[0], rtol=1e-6, atol=0.0) and abs(2.0 * r[0] - step[0]) <= 1e-6 * step[0]:
+        return step[0] * np.arange(r.size + 1)
+    return None
+
+
 def _mcml_photons(comments) -> int | None:
     """The photon count of an MCML run named in the file's first comment line (``# MCML ... photons=N``), else None."""
     if not comments or not comments[0].startswith("MCML"):

@@ -126,12 +126,13 @@ def _replay_result(fit, free, start, common, warnings, t0) -> McoFit:
 
 def _bin_edges(data, owner: str) -> np.ndarray:
     """The profile's annulus edges: recorded by the reader, or those of equal bins from 0 whose centres ``r`` are."""
+    from fitting.io import equal_bin_edges
+
     if data.r_edges is not None:
         return np.asarray(data.r_edges, dtype=np.float64)
-    r = np.asarray(data.r, dtype=np.float64)
-    dr = 2.0 * r[0]
-    if dr > 0 and np.allclose(np.diff(r), dr, rtol=1e-6, atol=0.0):
-        return dr * np.arange(len(r) + 1)
+    edges = equal_bin_edges(data.r)
+    if edges is not None:
+        return edges
     raise ValueError(f"{owner}: {data.source} gives radii but no bin edges, and the radii are not centres of equal "
                      "bins from r = 0; replay Monte Carlo fits bin averages: use the binned CSV layout "
                      "(r_lo_mm, r_hi_mm, ...) or an MCML .mco file")

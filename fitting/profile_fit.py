@@ -487,8 +487,9 @@ def _fit(owner, batched, r, R, R_stderr, T, T_stderr, *, eta, model, thickness, 
         # Binned data (e.g. `jaxsss mc`): radii at the centres of equal bins starting at 0. The first bin holds the
         # source, where R is steep (~1/r): its average is far from the transport point value at its centre (3% bias
         # in sigma_a at albedo 0.99, 100 bins), so the default range starts at the second bin.
-        step = np.diff(pb.r)
-        if np.allclose(step, step[0], rtol=1e-6) and abs(2.0 * pb.r[0] - step[0]) <= 1e-6 * step[0]:
+        from fitting.io import equal_bin_edges
+
+        if equal_bin_edges(pb.r) is not None:
             source_bin = True
             pb.r_lo = np.maximum(pb.r_lo, 0.5 * (pb.r[0] + pb.r[1]))
     y, se, eta_p, d = pb.y, pb.se, pb.eta, pb.d

@@ -190,14 +190,18 @@ class WhiteTable(eqx.Module):
 
     @property
     def log_r_centres(self):
-        e = self.r_edges
-        c = jnp.sqrt(e[1:] * e[:-1])
-        return jnp.log(c.at[0].set(0.5 * e[1]))
+        return log_r_centres(self.r_edges)
 
     @property
     def valid_mu_min(self) -> float:
         """Smallest ``sigma_a / sigma_s`` for which the truncation bias stays below ~1% up to ``r = 10 l_d``."""
         return 20.0 / self.path_max
+
+
+def log_r_centres(r_edges):
+    """``log`` of the radial bins' centres: geometric centres, ``r_1 / 2`` for the first bin ``[0, r_1)``."""
+    c = jnp.sqrt(r_edges[1:] * r_edges[:-1])
+    return jnp.log(c.at[0].set(0.5 * r_edges[1]))
 
 
 def available_white_tables(directory=None) -> list[tuple[float, float]]:

@@ -37,7 +37,7 @@ import numpy as np
 
 from jaxsss import _config  # noqa: F401  (float64)
 from jaxsss.fresnel import A_coefficient
-from jaxsss.mc.white import _log_eval, _log_mean_exp, _node_values
+from jaxsss.mc.white import _log_eval, _log_mean_exp, _node_values, log_r_centres
 from jaxsss.validate import check_range, is_concrete
 
 __all__ = [
@@ -306,9 +306,7 @@ class WhiteFamily(eqx.Module):
 
     @property
     def log_r_centres(self):
-        e = self.r_edges
-        c = jnp.sqrt(e[1:] * e[:-1])
-        return jnp.log(c.at[0].set(0.5 * e[1]))
+        return log_r_centres(self.r_edges)
 
     @property
     def valid_mu_min(self) -> float:
