@@ -56,6 +56,16 @@ ALT_DCHI2 = 4.0  # another minimum within this many units of chi^2 (in the fit's
 STRUCTURE_RHO = 0.5  # lag-1 autocorrelation of the residuals above this (no standard errors given) ...
 STRUCTURE_RMS = 1e-6  # ... with an rms relative misfit above this: a systematic misfit
 ALT_SEPARATION = 1e-3  # ... if it differs by more than this in log sigma_a or log sigma_s' (and 3 standard errors)
+# Models tabulated by Monte Carlo (``ForwardModel.rough``): two more starts along the valley of the first solution
+# (the covariance's major axis), each the lowest-cost point of a scan at VALLEY_SCAN distances in (log sigma_a,
+# log sigma_s') on its side. The mc sweep's fits that stopped in minima of the table noise sat 0.25-0.4 from the
+# truth along the valley, some behind two barriers (benchmarks/fit_sweep.py; docs/benchmarks.md).
+VALLEY_SCAN = (0.15, 0.3, 0.45, 0.6, 0.75, 0.9)
+# The covariance of a rough model's fit comes from a central-difference Jacobian of this step in the log-parameters
+# (one radial bin of the white-MC tables is 0.115 in log r): the local derivative of an interpolant through noisy
+# nodes measures the noise's curvature, not the data's information, and gave standard errors of 1-2% for far-field
+# fits 25-35% from the truth along a flat valley (the mc sweep; docs/benchmarks.md).
+ROUGH_JACOBIAN_STEP = 0.1
 
 
 class Config(NamedTuple):
@@ -82,7 +92,7 @@ class Config(NamedTuple):
         return resolve_solver(self.solver).native
 
 
-TRACES = {"fit": 0, "starts": 0, "solve": 0, "lm_block": 0, "finish": 0, "data_guess": 0}
+TRACES = {"fit": 0, "starts": 0, "solve": 0, "lm_block": 0, "finish": 0, "data_guess": 0, "valley": 0}
 """How often each piece was traced (a test checks that a second call with new values does not retrace)."""
 
 
@@ -335,6 +345,22 @@ def _linearise(theta, args):
     return rr, J
 
 
+def _secant_jacobian(theta, args):
+    """``(residuals, J)`` with ``J`` by central differences of step :data:`ROUGH_JACOBIAN_STEP` (rough models)."""
+    h = ROUGH_JACOBIAN_STEP
+    e = h * jnp.eye(theta.shape[0], dtype=theta.dtype)
+    plus = jax.vmap(lambda d: residuals(theta + d, args))(e)
+    minus = jax.vmap(lambda d: residuals(theta - d, args))(e)
+    return residuals(theta, args), ((plus - minus) / (2.0 * h)).T
+
+
+def _covariance_jacobian(theta, args):
+    """The Jacobian the covariance and the valley use: the model's own, or the secant one for rough models."""
+    if resolve_model(args[-1].model).rough:
+        return _secant_jacobian(theta, args)
+    return _linearise(theta, args)
+
+
 def solve_small(A, b):
     """``A^{-1} b`` for the LM's ``p x p`` normal equations: in closed form (the adjugate over the determinant) for
     ``p`` = 2 and 3, where a batched LAPACK call per problem and iteration costs more than the arithmetic; else
@@ -449,13 +475,58 @@ def solve_starts(theta0s, mask, r, y, se, eta, d, cfg: Config):
     return jax.vmap(lambda th, lim: one(th, lim, args, cfg))(theta0s, step_limits(theta0s.shape[0], cfg))
 
 
+def _chosen(thetas, results, stationary, costs):
+    """Index of the chosen solution: the converged one of lowest cost (a stationary one wins a tie to 1e-9: costs at
+    the float64 floor of noisy data agree to ~1e-15 while the parameters of a stop by the reduction test may differ by
+    1e-9); and the sort key and convergence flags of every start."""
+    ok = (results == optx.RESULTS.successful) & jnp.isfinite(costs)
+    key = jnp.where(ok, costs * jnp.where(stationary, 1.0, 1.0 + 1e-9),
+                    jnp.where(jnp.isfinite(costs), 1e300 + costs, jnp.inf))
+    return jnp.argmin(key), key, ok
+
+
+def valley_starts(thetas, results, steps, stationary, mask, r, y, se, eta, d, cfg: Config):
+    """Two starts ``(2, p)`` either side of the chosen solution along its valley: on the major axis of the covariance
+    (``(J^T J)^-1`` at the solution; the scale and ``eta``, when free, move with it as the axis says), the point of
+    lowest cost among :data:`VALLEY_SCAN` distances in ``(log sigma_a, log sigma_s')`` on each side. For rough
+    (tabulated) models, whose noise makes shallow local minima where the data constrain one combination of the
+    parameters only."""
+    TRACES["valley"] += 1
+    w, _ = weights(y, se, cfg)
+    args = (r, y, w, mask, eta, d, cfg)
+    costs = jax.vmap(lambda th: jnp.sum(residuals(th, args) ** 2))(thetas)
+    best, _, _ = _chosen(thetas, results, stationary, costs)
+    theta = jax.lax.stop_gradient(thetas[best])
+    _, J = _covariance_jacobian(theta, args)
+    JTJ = J.T @ J
+    dn = jnp.sqrt(jnp.diag(JTJ))
+    dn = jnp.where(dn > 0, dn, 1.0)
+    # Major axis of the covariance = eigenvector of the smallest eigenvalue of the normalised J^T J.
+    _, vecs = jnp.linalg.eigh(JTJ / jnp.outer(dn, dn))
+    v = vecs[:, 0] / dn
+    v = v / jnp.maximum(jnp.linalg.norm(v[:2]), 1e-300)
+    v = jnp.where(jnp.all(jnp.isfinite(v)), v, jnp.zeros_like(v).at[0].set(1.0).at[1].set(-1.0) / jnp.sqrt(2.0))
+    t = jnp.asarray(VALLEY_SCAN, theta.dtype)
+    side = jnp.concatenate([t, -t])[:, None] * v[None, :] + theta[None, :]  # (2 S, p)
+    cost = jax.vmap(lambda th: jnp.sum(residuals(th, args) ** 2))(side)
+    cost = jnp.where(jnp.isfinite(cost), cost, jnp.inf).reshape(2, -1)
+    k = jnp.argmin(cost, axis=1)
+    return side.reshape(2, t.shape[0], -1)[jnp.arange(2), k]
+
+
+def with_valley(sol, mask, r, y, se, eta, d, cfg: Config):
+    """``sol`` (the starts' solutions) extended by the two valley starts' solutions (:func:`valley_starts`)."""
+    v0 = valley_starts(*sol, mask, r, y, se, eta, d, cfg)
+    extra = solve_starts(v0, mask, r, y, se, eta, d, cfg)
+    return jax.tree_util.tree_map(lambda a, b: jnp.concatenate([a, b]), tuple(sol), tuple(extra))
+
+
 # --- 4. Choice among the starts, covariance, suspect checks --------------------------------------------------------
 def finish(thetas, results, steps, stationary, mask, r, y, se, eta, d, cfg: Config):
     """The fit from the solutions of the starts (``thetas (S, p)``, ``results``, ``steps``, ``stationary (S,)``): a
     dict of estimates, standard errors, status and the suspect-fit checks.
 
-    The chosen solution is the converged one of lowest cost (a stationary one wins a tie to 1e-9: costs at the float64
-    floor of noisy data agree to ~1e-15 while the parameters of a stop by the reduction test may differ by 1e-9).
+    The chosen solution is the converged one of lowest cost (:func:`_chosen`).
     Suspect (``suspect`` > 0, a bit field):
 
     - 1, chi^2: standard errors were given for every fitted point and a chi^2 this large has a probability below
@@ -472,10 +543,7 @@ def finish(thetas, results, steps, stationary, mask, r, y, se, eta, d, cfg: Conf
     args = (r, y, w, mask, eta, d, cfg)
     res_all = jax.vmap(lambda th: residuals(th, args))(thetas)  # (S, K N): one model evaluation for all starts
     costs = jnp.sum(res_all**2, axis=1)
-    ok = (results == optx.RESULTS.successful) & jnp.isfinite(costs)
-    key = jnp.where(ok, costs * jnp.where(stationary, 1.0, 1.0 + 1e-9),
-                    jnp.where(jnp.isfinite(costs), 1e300 + costs, jnp.inf))
-    best = jnp.argmin(key)
+    best, key, ok = _chosen(thetas, results, stationary, costs)
     theta = thetas[best]
     sa, ss, scale, eta_hat = unpack(theta, eta, cfg)
     out = {"sigma_a": sa, "sigma_s_prime": ss, "scale": scale, "eta": eta_hat,
@@ -516,9 +584,10 @@ def finish(thetas, results, steps, stationary, mask, r, y, se, eta, d, cfg: Conf
 
 
 def covariance(theta, args, cfg: Config):
-    """Standard errors from ``J^T J`` at the solution, scaled by the residual variance ``SSR / (n - p)``."""
+    """Standard errors from ``J^T J`` at the solution, scaled by the residual variance ``SSR / (n - p)`` (for rough
+    models ``J`` is a secant over :data:`ROUGH_JACOBIAN_STEP`, see :func:`_covariance_jacobian`)."""
     th = jax.lax.stop_gradient(theta)
-    res, J = _linearise(th, args)  # J: (K N, p), in the log-parameters
+    res, J = _covariance_jacobian(th, args)  # J: (K N, p), in the log-parameters
     ssr = jnp.sum(res**2)
     n = jnp.sum(args[3]).astype(res.dtype)
     p = cfg.n_params
@@ -568,6 +637,8 @@ def fit(r, y, se, eta, d, r_lo, r_hi, auto, cfg: Config):
     TRACES["fit"] += 1
     theta0, mask, r_cut, flags = starts(r, y, se, eta, d, r_lo, r_hi, auto, cfg)
     sol = solve_starts(theta0, mask, r, y, se, eta, d, cfg)
+    if resolve_model(cfg.model).rough:
+        sol = with_valley(sol, mask, r, y, se, eta, d, cfg)
     return finish(*sol, mask, r, y, se, eta, d, cfg), theta0, mask, r_cut, flags
 
 
@@ -583,4 +654,4 @@ def solve_params(theta0, mask, r, y, se, eta, d, cfg: Config):
 
 
 __all__ = ["Config", "LMState", "TRACES", "data_guess", "finish", "fit", "lm_block", "lm_init", "lm_solve",
-           "predict", "solve_params", "solve_starts", "starts"]
+           "predict", "solve_params", "solve_starts", "starts", "valley_starts", "with_valley"]

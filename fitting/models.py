@@ -68,6 +68,12 @@ class ForwardModel(NamedTuple):
         ratio_min: host-side ``ratio_min(static) -> float``: the smallest ``sigma_a / sigma_s'`` where the model is
             valid, or ``None`` (no limit). The start is clamped into the range (with a note) and a solution below it
             is a warning of the result.
+        noise: host-side ``noise(r, sigma_a, sigma_s_prime, static) -> relative standard error`` of the model's own
+            values (a Monte Carlo table's noise), or ``None`` (exact). A fit whose range has a median above
+            :data:`MODEL_NOISE_LIMIT` at the solution gets a model warning.
+        rough: the model is tabulated Monte Carlo whose noise makes shallow local minima along the fit's valley
+            (the ``mc`` family: ~0.5-3% per annulus far out); fits add two starts along it (``fitting._kernel``'s
+            :func:`valley_starts`).
     """
 
     name: str
@@ -85,6 +91,8 @@ class ForwardModel(NamedTuple):
                          "transport mean free path of the source)")
     ratio_min: Callable | None = None
     r_max_ld: float | None = None  # the model is valid up to r_max_ld * l_d (default r_max at the start; warned past)
+    noise: Callable | None = None
+    rough: bool = False
 
 
 def _dipole(r, medium, thickness, static):
@@ -167,6 +175,11 @@ carries most of the information on the albedo. 0.1 l_u lies beyond the table's m
 
 
 MC_R_MAX_LD = 10.0
+MODEL_NOISE_LIMIT = 0.03
+"""A model whose own Monte Carlo noise over the fit range (median relative standard error per annulus, at the
+solution) exceeds this cannot place a fit: its noise makes local minima deeper than the data's information (the mc
+sweep: a low-albedo fit, 0.2-5 l_u from the source at g = 0.9, sat 34% off with the model's noise at 8-15%; fits
+inside the family's measured range see 0.3-2%)."""
 """The ``mc`` model's range ends at ``r <= 10 l_d`` (jaxsss.mc.white: bias < ~1% up to 10 l_d). Beyond it the
 table's far bins hold few photons: their noise makes local minima (issue 18: noise-free relative data of wholemilk
 to 14 l_d gave sigma_a +54% at a misfit that looked like noise, reported reliable; the same data to 10 l_d: exact)."""
@@ -248,6 +261,13 @@ def _mc_R_jvp(static, primals, tangents):
 mc_R.defjvp(_mc_R_jvp, symbolic_zeros=True)
 
 
+def mc_R_stderr(r, sigma_a, sigma_s_prime, static):
+    """:func:`jaxsss.mc.white_family.white_family_profile_stderr` at ``static = (g, n)``: the family's relative noise."""
+    from jaxsss.mc.white_family import white_family_profile_stderr
+
+    return white_family_profile_stderr(r, sigma_a, sigma_s_prime, *static, _mc_family())
+
+
 def _mc(r, medium, thickness, static):
     # Per incident photon already (specular excluded): no entry transmittance here, unlike the diffusion models.
     return {"R": mc_R(r, medium.sigma_a, medium.sigma_s_prime, static)}
@@ -267,6 +287,8 @@ register_model(
         range_reason=("r >= 0.1 l_u at the initial guess (the white-MC model is transport near the source; 0.1 l_u "
                       "is beyond the table's merged first radial bin)"),
         r_max_ld=MC_R_MAX_LD,
+        noise=mc_R_stderr,
+        rough=True,
     )
 )
 

@@ -33,7 +33,7 @@ from jaxsss.validate import trusted_traces
 from jaxsss.fresnel import resolve_fresnel_method
 from fitting import _kernel as K
 from fitting.io import ProfileData
-from fitting.models import resolve_model
+from fitting.models import MODEL_NOISE_LIMIT, resolve_model
 from fitting.result import CONDITION_LIMIT, CORRELATION_LIMIT, ProfileFit
 from fitting.solvers import resolve_solver
 
@@ -175,7 +175,7 @@ def _mesh(n_problems):
     return jax.make_mesh((len(devices),), ("batch",), axis_types=(jax.sharding.AxisType.Auto,), devices=devices)
 
 
-_STAGES = {"fit": K.fit, "starts": K.starts, "solve": K.solve_starts, "finish": K.finish}
+_STAGES = {"fit": K.fit, "starts": K.starts, "solve": K.solve_starts, "valley": K.valley_starts, "finish": K.finish}
 
 
 @lru_cache(maxsize=64)
@@ -188,10 +188,11 @@ def _compiled(stage: str, cfg: K.Config):
 
 
 def _order(stage, r, a):
-    """The kernel functions take ``r`` after the per-problem start/solution arguments (solve, finish) or first."""
+    """The kernel functions take ``r`` after the per-problem start/solution arguments (solve, valley, finish) or
+    first."""
     if stage == "solve":
         return (a[0], a[1], r, *a[2:])
-    if stage == "finish":
+    if stage in ("finish", "valley"):
         return (*a[:5], r, *a[5:])
     return (r, *a)
 
@@ -440,6 +441,14 @@ def _static_bucket(n, cap):
     return int(min(b, cap)) if cap is not None else int(b)
 
 
+def _model_noise(model, cfg, r, mask, out) -> np.ndarray:
+    """Median over each fit's range (``mask (P, K, N)``) of the model's relative noise at the solution: ``(P,)``."""
+    sa, ss = np.asarray(out["sigma_a"]), np.asarray(out["sigma_s_prime"])
+    rel = np.asarray(model.noise(np.asarray(r)[None, :], sa[:, None], ss[:, None], cfg.static))  # (P, N)
+    used = np.any(mask, axis=1)  # (P, N): radii in the range of any output
+    return np.array([np.median(rel[i][used[i]]) if used[i].any() else 0.0 for i in range(rel.shape[0])])
+
+
 def _prepare_static(model, problem, sa, ss, eta, fresnel, notes):
     """The model's static setting for the given (concrete) parameters of every problem; if the model cannot settle
     one (e.g. the multipole's pair count for an almost non-absorbing slab), its ``static_cap`` with a note."""
@@ -529,6 +538,13 @@ def _fit(owner, batched, r, R, R_stderr, T, T_stderr, *, eta, model, thickness, 
             if need <= cfg.static:
                 break
             start = thetas
+        if model.rough:
+            # Two more starts along the valley of the solution (tabulated models; see fitting._kernel.valley_starts).
+            v0 = _run("valley", cfg, shard, pb.r, thetas, results, steps_total, stationary, mask, y, se, eta_p, d)
+            extra = _solve(cfg, shard, pb.r, v0, mask, y, se, eta_p, d)
+            thetas, results, steps_total, stationary = jax.tree_util.tree_map(
+                lambda a, b: np.concatenate([np.asarray(a), np.asarray(b)], axis=1),
+                (thetas, results, steps_total, stationary), tuple(extra))
         out = _run("finish", cfg, shard, pb.r, thetas, results, steps_total, stationary, mask, y, se, eta_p, d)
     out = jax.block_until_ready(out)
     seconds = time.perf_counter() - t0
@@ -584,6 +600,16 @@ def _fit(owner, batched, r, R, R_stderr, T, T_stderr, *, eta, model, thickness, 
                 f"r <= {model.r_max_ld:g} l_d (first: fit {i}: r_max = {float(np.asarray(out['r_max'])[i]):.3g} mm "
                 f"= {float(np.asarray(out['r_max'])[i] / ld_f[i]):.3g} l_d); the far field's table noise can make "
                 "local minima -- give a smaller r_max")
+    if model.noise is not None:
+        # The model's own Monte Carlo noise over each fit's range, at the solution (MODEL_NOISE_LIMIT).
+        noisy = _model_noise(model, cfg, pb.r, np.asarray(mask), out)
+        if np.any(noisy > MODEL_NOISE_LIMIT):
+            i = int(np.argmax(noisy > MODEL_NOISE_LIMIT))
+            model_warnings.append(
+                f"{int((noisy > MODEL_NOISE_LIMIT).sum())} of {noisy.size} fits lie where the {model.name} model's own "
+                f"Monte Carlo noise exceeds {MODEL_NOISE_LIMIT:.0%} per annulus (first: fit {i}: median "
+                f"{noisy[i]:.1%} over its range): the table's noise can hold the solver in a wrong minimum -- use "
+                "radii where the model is precise (nearer the source at weak absorption, farther at strong)")
     u = pb.unflatten
     zeros = np.zeros(pb.B * pb.C)
     res = ProfileFit(

@@ -50,6 +50,7 @@ __all__ = [
     "load_white_family",
     "log_bin_profile",
     "white_family_profile",
+    "white_family_profile_stderr",
 ]
 
 FAMILY_DIR = Path(__file__).resolve().parent / "data" / "family"
@@ -288,6 +289,8 @@ class WhiteFamily(eqx.Module):
             bin; zero beyond a node's valid radii.
         D: ``(G, N, M, P_sim)`` the diffusion model's cells on the simulated pathlength bins (the tail's law and
             fitted amplitude): the shape of a node's profile beyond its valid radii.
+        E: ``(G, N, M, P_sim)`` standard errors of the simulated cells of ``R`` (zero beyond a node's valid radii):
+            the tables' Monte Carlo noise, for :func:`white_family_profile_stderr`.
         valid: ``(G, N)`` number of radial bins each node uses (the rest are extrapolated, see ``_node_log_profiles``).
         g_nodes, n_nodes: the grid (static tuples); n is the absolute index under air (``eta = n``).
         tail_weight: ``(G, N)`` weight the diffusion tail carries at ``sigma_a = 0`` over the whole plane.
@@ -298,6 +301,7 @@ class WhiteFamily(eqx.Module):
     pathlength_edges: jax.Array
     R: jax.Array
     D: jax.Array
+    E: jax.Array
     valid: jax.Array
     tail_weight: jax.Array
     n_simulated: int = eqx.field(static=True)
@@ -350,16 +354,19 @@ def load_node(path) -> dict:
     return t
 
 
-def prepare_node(t: dict) -> tuple[np.ndarray, np.ndarray, int, float]:
+def prepare_node(t: dict) -> tuple[np.ndarray, np.ndarray, np.ndarray, int, float]:
     """A node's cells with the diffusion tail appended ``(M, P + T)``; the diffusion model's cells on the simulated
     pathlength bins ``(M, P)`` (the tail's law and amplitude at ``L' < L_MAX``, for the radii beyond the valid ones);
-    its number of valid radial bins; and the tail's weight over the whole plane at ``sigma_a = 0``."""
+    the standard errors of the simulated cells ``(M, P)`` (zero beyond the valid radii); its number of valid radial
+    bins; and the tail's weight over the whole plane at ``sigma_a = 0``."""
     te = tail_edges()
     M = len(t["r_edges"]) - 1
     A, cells = fit_tail(t, valid_bins(t, np.zeros((M, len(te) - 1))))
     v = valid_bins(t, cells)
     R = np.concatenate([t["R"].astype(np.float64), cells], axis=1)
     R[v:, : t["R"].shape[1]] = 0.0  # simulated cells beyond the valid radii: extrapolated instead
+    E = t["R_stderr"].astype(np.float64)
+    E[v:] = 0.0
     p_e = t["pathlength_edges"]
     Lc = np.sqrt(p_e[1:] * np.maximum(p_e[:-1], p_e[1] / 4))
     D = A * _tail_shape(t["r_edges"], Lc, t["n"]) * np.diff(p_e)
@@ -367,23 +374,25 @@ def prepare_node(t: dict) -> tuple[np.ndarray, np.ndarray, int, float]:
     z1 = 1.0 + 4.0 * float(A_coefficient(t["n"])) / 3.0
     Lq = np.logspace(math.log10(L_MAX), 12, 4000)
     f = Lq**-1.5 * 4.0 * np.pi / 3.0 * (np.exp(-0.75 / Lq) + z1 * np.exp(-0.75 * z1**2 / Lq))
-    return R, D, v, A * float(np.trapezoid(f, Lq))
+    return R, D, E, v, A * float(np.trapezoid(f, Lq))
 
 
 def family_from_nodes(nodes: dict, g_nodes, n_nodes) -> WhiteFamily:
     """A :class:`WhiteFamily` from node tables ``{(g, n): table}`` covering ``g_nodes`` x ``n_nodes`` (each sorted,
     at least two values; one value each is allowed for evaluating a single node)."""
     r_edges, p_edges = common_edges()
-    rows, diff, valid, tails = [], [], [], []
+    rows, diff, errs, valid, tails = [], [], [], [], []
     for g in g_nodes:
         prep = [prepare_node(nodes[g, n]) for n in n_nodes]
         rows.append([p[0] for p in prep])
         diff.append([p[1] for p in prep])
-        valid.append([p[2] for p in prep])
-        tails.append([p[3] for p in prep])
+        errs.append([p[2] for p in prep])
+        valid.append([p[3] for p in prep])
+        tails.append([p[4] for p in prep])
     return WhiteFamily(r_edges=jnp.asarray(r_edges),
                        pathlength_edges=jnp.asarray(np.concatenate([p_edges, tail_edges()[1:]])),
-                       R=jnp.asarray(np.array(rows)), D=jnp.asarray(np.array(diff)), valid=jnp.asarray(np.array(valid), jnp.int32),
+                       R=jnp.asarray(np.array(rows)), D=jnp.asarray(np.array(diff)),
+                       E=jnp.asarray(np.array(errs)), valid=jnp.asarray(np.array(valid), jnp.int32),
                        tail_weight=jnp.asarray(np.array(tails)), n_simulated=len(p_edges) - 1, g_nodes=tuple(float(g) for g in g_nodes),
                        n_nodes=tuple(float(n) for n in n_nodes))
 
@@ -413,6 +422,40 @@ def _hermite_weights(x, nodes):
             + (h * h10)[..., None] * S_j[i] + (h * h11)[..., None] * S_j[i + 1])
 
 
+def _node_parts(mu, fam: WhiteFamily, noise: bool = False):
+    """Every node's annulus averages at ``mu' = sigma_a / sigma_s'`` in two parts, ``mu.shape + (G, N, M)`` each:
+    ``log`` of the simulated part (``L' < L_MAX``, extrapolated beyond the valid radii, see
+    :func:`_node_log_profiles`) and ``log`` of the diffusion tail; with ``noise``, also the simulated part's relative
+    standard error (beyond the valid radii: that of the match factor)."""
+    L0 = fam.pathlength_edges[:-1]
+    dL = jnp.diff(fam.pathlength_edges)
+    logw = _log_mean_exp(mu[..., None], L0, dL)  # (..., P + T)
+    P = fam.n_simulated
+
+    def part(R, lw, square=False):
+        # R_node(rho) = sum_L Rtab(rho, L) <exp(-mu L)>: one matrix product, shifted by the largest weight.
+        top = jnp.max(lw, axis=-1, keepdims=True)
+        k = 2.0 if square else 1.0
+        s = jnp.einsum("gnmp,...p->...gnm", R, jnp.exp(k * (lw - top)))
+        return jnp.log(jnp.maximum(s, 1e-300)) + k * top[..., None, None]
+
+    y = part(fam.R[..., :P], logw[..., :P])
+    y_dif = part(fam.D, logw[..., :P])
+    m = jnp.arange(fam.r_edges.shape[0] - 1, dtype=fam.valid.dtype)
+    inside = m < fam.valid[..., None]
+    # log(simulation / model), averaged over the last N_MATCH valid bins of each node.
+    near = inside & (m >= fam.valid[..., None] - N_MATCH)  # (G, N, M)
+    match = jnp.sum(jnp.where(near, y - y_dif, 0.0), axis=-1, keepdims=True) / N_MATCH
+    y_sim = jnp.where(inside, y, y_dif + match)
+    y_tail = part(fam.R[..., P:], logw[..., P:])
+    if not noise:
+        return y_sim, y_tail
+    # Relative standard error of the simulated cells' sum (cells independent): sqrt(sum (E w)^2) / sum(R w).
+    rel = jnp.exp(0.5 * part(fam.E**2, logw[..., :P], square=True) - y)
+    rel_match = jnp.sqrt(jnp.sum(jnp.where(near, rel**2, 0.0), axis=-1, keepdims=True)) / N_MATCH
+    return y_sim, y_tail, jnp.where(inside, rel, rel_match)
+
+
 def _node_log_profiles(mu, fam: WhiteFamily):
     """``log`` of every node's annulus averages at ``mu' = sigma_a / sigma_s'``: ``mu.shape + (G, N, M)``.
 
@@ -422,25 +465,8 @@ def _node_log_profiles(mu, fam: WhiteFamily):
     ``N_MATCH`` valid bins, at the same ``mu'``. Far from the source at weak absorption the paths are long and
     diffusive, so the model carries the shape there (measured against 10^6-photon tables: within ~5% at 20-100
     transport lengths, n = 1 to 1.4). Every node then has values on the common grid, as the interpolation needs."""
-    L0 = fam.pathlength_edges[:-1]
-    dL = jnp.diff(fam.pathlength_edges)
-    logw = _log_mean_exp(mu[..., None], L0, dL)  # (..., P + T)
-    P = fam.n_simulated
-
-    def part(R, lw):
-        # R_node(rho) = sum_L Rtab(rho, L) <exp(-mu L)>: one matrix product, shifted by the largest weight.
-        top = jnp.max(lw, axis=-1, keepdims=True)
-        s = jnp.einsum("gnmp,...p->...gnm", R, jnp.exp(lw - top))
-        return jnp.log(jnp.maximum(s, 1e-300)) + top[..., None, None]
-
-    y = part(fam.R[..., :P], logw[..., :P])
-    y_dif = part(fam.D, logw[..., :P])
-    m = jnp.arange(fam.r_edges.shape[0] - 1, dtype=fam.valid.dtype)
-    # log(simulation / model), averaged over the last N_MATCH valid bins of each node.
-    near = (m < fam.valid[..., None]) & (m >= fam.valid[..., None] - N_MATCH)  # (G, N, M)
-    match = jnp.sum(jnp.where(near, y - y_dif, 0.0), axis=-1, keepdims=True) / N_MATCH
-    y = jnp.where(m < fam.valid[..., None], y, y_dif + match)
-    return jnp.logaddexp(y, part(fam.R[..., P:], logw[..., P:]))
+    y_sim, y_tail = _node_parts(mu, fam)
+    return jnp.logaddexp(y_sim, y_tail)
 
 
 def log_bin_profile(mu, g, n, fam: WhiteFamily):
@@ -481,7 +507,7 @@ def _block(fam: WhiteFamily, g: float, n: float):
     if key not in _BLOCKS:
         sl = (slice(ig, ig + kg), slice(in_, in_ + kn))
         _BLOCKS[key] = (fam, WhiteFamily(
-            r_edges=fam.r_edges, pathlength_edges=fam.pathlength_edges, R=fam.R[sl], D=fam.D[sl],
+            r_edges=fam.r_edges, pathlength_edges=fam.pathlength_edges, R=fam.R[sl], D=fam.D[sl], E=fam.E[sl],
             valid=fam.valid[sl], tail_weight=fam.tail_weight[sl], n_simulated=fam.n_simulated,
             g_nodes=fam.g_nodes[ig:ig + kg], n_nodes=fam.n_nodes[in_:in_ + kn]))
     return _BLOCKS[key][1], jnp.asarray(wg), jnp.asarray(wn)
@@ -540,6 +566,44 @@ def white_family_profile(r, sigma_a, sigma_s_prime, g, n, family: WhiteFamily | 
     wg = _hermite_weights(g, fam.g_nodes)
     wn = _hermite_weights(n, fam.n_nodes)
     return _family_kernel(r, sigma_a, sigma_s_prime, wg, wn, fam)
+
+
+@eqx.filter_jit
+def _family_stderr_kernel(r, sigma_a, sigma_s_prime, wg, wn, fam: WhiteFamily):
+    shape = jnp.broadcast_shapes(jnp.shape(r), jnp.shape(sigma_a), jnp.shape(sigma_s_prime), wg.shape[:-1],
+                                 wn.shape[:-1])
+    y_sim, y_tail, rel = _node_parts(sigma_a / sigma_s_prime, fam, noise=True)
+    # Each node's relative error: its simulated part's, times that part's share (the tail is taken as exact).
+    rel_node = rel * jnp.exp(y_sim - jnp.logaddexp(y_sim, y_tail))
+    # log R = sum_k w_k log R_k over independent nodes: var = sum_k w_k^2 var_k.
+    rel_bin = jnp.sqrt(jnp.einsum("...gnm,...g,...n->...m", rel_node**2, wg**2, wn**2))
+    rel_bin = jnp.broadcast_to(rel_bin, shape + rel_bin.shape[-1:])
+    rho = jnp.broadcast_to(r * sigma_s_prime, shape)
+    i = jnp.clip(jnp.searchsorted(fam.r_edges, rho, side="right") - 1, 0, rel_bin.shape[-1] - 1)
+    return jnp.take_along_axis(rel_bin, i[..., None], axis=-1)[..., 0]
+
+
+def white_family_profile_stderr(r, sigma_a, sigma_s_prime, g, n, family: WhiteFamily | None = None):
+    """Relative standard error of :func:`white_family_profile` from the nodes' Monte Carlo noise: the annulus that
+    holds ``r``, the nodes' errors combined with the interpolation weights (nodes and cells independent; the
+    diffusion tail and the far-field shape taken as exact, the match of that shape to the simulation not).
+
+    The model's own precision, to set beside the data's: it grows far from the source at weak absorption (few photons
+    travel that far) and near the source at strong absorption (few short paths leave at that radius), where a fit can
+    stop in a local minimum of the tables' noise. Same arguments and shapes as :func:`white_family_profile`; not
+    differentiable in any useful sense."""
+    fam = load_white_family() if family is None else family
+    owner = "white_family_profile_stderr"
+    r = check_range(r, "r", 0.0, None, owner=owner)
+    sigma_a = check_range(sigma_a, "sigma_a", 0.0, None, owner=owner)
+    sigma_s_prime = check_range(sigma_s_prime, "sigma_s_prime", 0.0, None, lo_open=True, owner=owner)
+    g = check_range(g, "g", fam.g_nodes[0], fam.g_nodes[-1], owner=owner)
+    n = check_range(n, "n", fam.n_nodes[0], fam.n_nodes[-1], owner=owner)
+    if is_concrete(g) and is_concrete(n) and np.ndim(g) == 0 and np.ndim(n) == 0:
+        sub, wg, wn = _block(fam, float(g), float(n))
+        return _family_stderr_kernel(r, sigma_a, sigma_s_prime, wg, wn, sub)
+    return _family_stderr_kernel(r, sigma_a, sigma_s_prime, _hermite_weights(g, fam.g_nodes),
+                                 _hermite_weights(n, fam.n_nodes), fam)
 
 
 def covers(g, n) -> bool:

@@ -142,3 +142,34 @@ def test_merge_nodes_pools_photons():
     assert m["photons"] == 4 * int(a["photons"]) and m["seconds"] == float(a["seconds"]) + 5.0
     with pytest.raises(ValueError, match="different nodes"):
         wf.merge_nodes(a, wf.load_node(wf.FAMILY_DIR / wf.node_file(0.3, 1.4)))
+
+
+def test_stderr_at_a_node_is_the_node_tables_noise(fam):
+    # Reference value: at a node the weights are a unit vector, so the family's noise is that node's own: sqrt(sum
+    # (E w)^2) / sum(R w) over its pathlength cells (the diffusion tail counted as exact), the annulus holding r.
+    g, n, mu = 0.6, 1.2, 0.02
+    t = wf.load_node(wf.FAMILY_DIR / wf.node_file(g, n))
+    p = t["pathlength_edges"]
+    w = np.exp(-mu * p[:-1]) * -np.expm1(-mu * np.diff(p)) / (mu * np.diff(p))  # <exp(-mu L)> over each bin
+    R, E = t["R"].astype(float), t["R_stderr"].astype(float)
+    _, tail = wf.fit_tail(t, wf.valid_bins(t, np.zeros((R.shape[0], len(wf.tail_edges()) - 1))))
+    te = wf.tail_edges()
+    wt = np.exp(-mu * te[:-1]) * -np.expm1(-mu * np.diff(te)) / (mu * np.diff(te))
+    expect = np.sqrt(((E * w) ** 2).sum(1)) / ((R * w).sum(1) + (tail * wt).sum(1))
+    m = np.array([20, 40, 60])  # bins inside the valid range
+    rho = np.sqrt(t["r_edges"][m] * t["r_edges"][m + 1])
+    got = wf.white_family_profile_stderr(rho, mu, 1.0, g, n, fam)
+    np.testing.assert_allclose(got, expect[m], rtol=0.02)
+
+
+def test_stderr_shapes_invariants_and_bad_input(fam):
+    r = np.geomspace(0.1, 100.0, 30)
+    sa = jnp.array([0.0, 0.01, 0.1])
+    e = np.asarray(wf.white_family_profile_stderr(r[:, None], sa, 1.0, 0.45, 1.15, fam))
+    assert e.shape == (30, 3) and np.all(np.isfinite(e)) and np.all(e >= 0)
+    # Physical trend: at strong absorption few photons reach far annuli (noisy), near the source many do.
+    near, far = (r > 1) & (r < 5), (r > 10) & (r < 50)
+    assert e[far, 2].max() > 5 * e[near, 2].max()
+    assert np.all(e[near] < 0.01)
+    with pytest.raises(ValueError, match=r"white_family_profile_stderr\(g="):
+        wf.white_family_profile_stderr(1.0, 0.01, 1.0, 0.99, 1.3, fam)
