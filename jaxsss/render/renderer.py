@@ -61,7 +61,7 @@ class Prepared(ReflectingPoints):
     rho0: jax.Array  # ()
     method: str = eqx.field(static=True)
     shared_channel: bool = eqx.field(static=True)
-    # The BSSRDF kernel (jaxsss.render.bssrdf): its white Monte Carlo tables, one per incidence node (None: dipole).
+    # The BSSRDF kernel (jaxsss.render.bssrdf): its oblique sources (white_tables; None: the dipole).
     bssrdf_tables: tuple | None = None
     light_tangent: jax.Array | None = None  # (N, L, 3) travel direction inside, on the surface (white-oblique)
     bssrdf: str = eqx.field(static=True, default="dipole")

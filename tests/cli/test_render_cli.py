@@ -70,8 +70,9 @@ def test_explain_prints_the_plan(capsys, small_scene):
     code, out, err = run_cli(capsys, "render", small_scene, "--explain")
     assert code == 0, err
     assert "shadow rays" in out and "convex mesh alone" in out and "single scattering" in out
-    # skin1 at its table eta 1.3: no white Monte Carlo table, so the plan keeps the dipole and says so.
-    assert "bssrdf: dipole" in out and "WARNING: no white Monte Carlo table for g=0, eta=1.3" in out
+    # skin1 at its table eta 1.3: the white Monte Carlo family covers it (no tables to make), oblique nodes from the
+    # nearest tabulated pair's ratio.
+    assert "bssrdf: white-oblique" in out and "ratio of (g=0, n=1.33)" in out and "make_white_tables" not in out
 
 
 def test_every_example_has_a_plan(capsys):
@@ -94,13 +95,20 @@ def test_help_states_units(capsys):
         (["--resolution", "0", "4"], "--resolution"),
         (["--method", "nope"], "method"),
         (["--method", "cached", "--bssrdf", "white"], "--bssrdf applies to --method hierarchical / direct"),
-        (["--bssrdf", "white", "--explain"], "bssrdf='white': no table for g=0, eta=1.3"),
     ],
 )
 def test_bad_options_are_one_line_errors(capsys, small_scene, argv, needle):
     code, out, err = run_cli(capsys, "render", small_scene, *argv)
     assert code == 2 and out == ""
     assert err.startswith("jaxsss: error:") and err.count("\n") == 1 and needle in err
+
+
+def test_white_kernel_outside_the_family_is_a_one_line_error(capsys, tmp_path, small_scene):
+    scene = tmp_path / "eta2.toml"
+    scene.write_text(small_scene.read_text().replace('name = "skin1"', 'name = "skin1"\neta = 2.0'))
+    code, out, err = run_cli(capsys, "render", scene, "--bssrdf", "white", "--explain")
+    assert code == 2 and out == "" and err.count("\n") == 1
+    assert "bssrdf='white': eta=2 is outside the white Monte Carlo family's range [1, 1.6]" in err
 
 
 def test_bad_scene_file_names_file_and_key(capsys, tmp_path):
