@@ -41,8 +41,9 @@ import numpy as np
 ROOT = Path(__file__).resolve().parents[1]
 REFERENCES = ROOT / "tests" / "export" / "references"
 NAME = "render_vs_path_tracer"
-SCENES = ("skin1_sphere", "g09_sphere", "skin1_sphere_env", "marble_teapot")
-REFERENCE_SPP = {"skin1_sphere": 8192, "g09_sphere": 8192, "skin1_sphere_env": 65536, "marble_teapot": 16384}
+SCENES = ("skin1_sphere", "g09_sphere", "skin1_sphere_env", "marble_teapot", "skin1_sphere_env13")
+REFERENCE_SPP = {"skin1_sphere": 8192, "g09_sphere": 8192, "skin1_sphere_env": 65536, "marble_teapot": 16384,
+                 "skin1_sphere_env13": 32768}
 REFERENCE_SEEDS = (0, 1)  # two halves, averaged; their difference measures the reference's noise
 LLVM_CANDIDATES = ("/usr/lib/x86_64-linux-gnu/libLLVM-19.so", "/usr/lib/x86_64-linux-gnu/libLLVM.so.19.1")
 ERROR_METRIC = "max over RGB of mean |relative error| over lit fully covered pixels vs the Mitsuba reference"
@@ -94,7 +95,8 @@ def skin1_env_sky() -> np.ndarray:
     return sky + 60.0 * np.exp(-0.5 * (angle / np.radians(10.0)) ** 2)[..., None] * np.array([1.0, 0.92, 0.8])
 
 
-SKIES = {"skin1_sphere_env": ("skin1_sphere_env_sky.npy", skin1_env_sky)}
+SKIES = {"skin1_sphere_env": ("skin1_sphere_env_sky.npy", skin1_env_sky),
+         "skin1_sphere_env13": ("skin1_sphere_env_sky.npy", skin1_env_sky)}
 """Environment maps of reference scenes, written next to their scene file before a reference is rendered."""
 
 
