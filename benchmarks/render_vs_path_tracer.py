@@ -239,16 +239,19 @@ def main(argv=None) -> int:
     json_path, png_path = write_results(NAME + args.tag, rows, args.out, quick=args.quick, summary=summary,
                                         notes=notes, title="jaxsss vs Mitsuba volpathmis: error vs seconds")
     maps = _error_maps(panels, Path(args.out) / f"{NAME}{args.tag}_maps.png")
+    def rnd(v):  # null (no terminator band under an environment) prints as nan
+        return np.round(np.asarray(v, dtype=float), 3).tolist()
+
     for r in rows:
-        print(f"{r['method']:40s} {str(r['setting']):22s} mare_lit {np.round(r['mare_lit'], 3).tolist()} "
-              f"band {np.round(r['mare_band'], 3).tolist()} sum {np.round(r['sum_ratio'], 3).tolist()} "
+        print(f"{r['method']:40s} {str(r['setting']):22s} mare_lit {rnd(r['mare_lit'])} "
+              f"band {rnd(r['mare_band'])} sum {rnd(r['sum_ratio'])} "
               f"{r['seconds']:.2f} s (compile {r['compile_seconds'] or 0:.2f})")
     for name in SCENES:
         for label, bins in summary[name]["jaxsss_error_by_cos"].items():
             print(f"{name} jaxsss {label}: signed relative error by cos(normal, to light)")
             for b in bins:
                 print(f"  cos [{b['cos'][0]:+.2f}, {b['cos'][1]:+.2f}] n={b['n']:4d} bias "
-                      f"{np.round(b['bias'], 3).tolist()} mare {np.round(b['mare'], 3).tolist()}")
+                      f"{rnd(b['bias'])} mare {rnd(b['mare'])}")
     print(f"wrote {json_path}, {png_path}, {maps}")
     return 0
 
