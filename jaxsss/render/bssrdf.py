@@ -99,6 +99,8 @@ as the first moment of the exit positions in Monte Carlo (``jaxsss.mc.simulate``
 g = 0, eta = 1; ``python -m jaxsss.render.make_oblique_tables --shifts`` reprints it). Wang and Jacques' diffusion
 estimate ``3 D sin theta_t`` would be 1 everywhere: it overestimates the shift of absorbing media at steep incidence
 by up to 45%. Interpolated linearly in ``alpha'`` (held beyond the ends)."""
+MEASURED_DG = 0.45
+"""How far in ``g`` from its oblique sources the transfer of the oblique/normal ratio was measured (module docstring)."""
 FORWARD_G = 0.5
 """``"auto"`` keeps the dipole from this ``g`` up: the exit distribution (:func:`exit_distribution`) is isotropic
 scattering's, and for g = 0.9 the oblique tables put forward-grazing light where the eye sees it (measured against
@@ -197,8 +199,13 @@ def _sources_text(g: float, n: float) -> str:
     if len(src) == 1 and (src[0][0], src[0][1]) == (round(g, 2), round(n, 2)):
         return "this pair's oblique tables"
     pairs = " and ".join(f"(g={a:g}, n={b:g}) x {w:.2f}" for a, b, w in src)
-    return (f"the oblique/normal ratio of {pairs} (no oblique tables for this pair; the transfer is measured within "
-            "2-10% of held-out tables, up to 13% at n 1.1, module docstring)")
+    # Measured between the g sources and up to MEASURED_DG away from a single one (module docstring).
+    gs = [a for a, _, _ in src]
+    between = len(set(gs)) > 1 and min(gs) <= g <= max(gs)
+    measured = (f"UNMEASURED this far from the sources' g (measured up to {MEASURED_DG:g} away)"
+                if not between and min(abs(a - g) for a in gs) > MEASURED_DG + 1e-9 else
+                "measured within 2-10% of held-out tables, up to 13% at n 1.1, module docstring")
+    return f"the oblique/normal ratio of {pairs} (no oblique tables for this pair; the transfer is {measured})"
 
 
 def choose_bssrdf(medium: Medium, request: str = "auto") -> tuple[str, str]:

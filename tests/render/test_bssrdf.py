@@ -211,6 +211,11 @@ def test_oblique_sources_weights():
     assert [p[:2] for p in oblique_sources(0.2, 1.365)] == [(0.0, 1.33), (0.0, 1.4)]
     assert oblique_sources(0.0, 1.55) == ((0.0, 1.4, 1.0),) and oblique_sources(0.0, 1.1) == ((0.0, 1.33, 1.0),)
     np.testing.assert_allclose([w for *_, w in oblique_sources(0.3, 1.0)], [2.0 / 3.0, 1.0 / 3.0], rtol=1e-12)
+    # A request far (in g) from every source is allowed, and the reason says the transfer is unmeasured there.
+    def why(g, eta):
+        return choose_bssrdf(jaxsss.Medium(0.1, 1.0, eta, g=g), "white-oblique")[1]
+
+    assert "UNMEASURED" in why(0.9, 1.4) and "UNMEASURED" not in why(0.45, 1.45) + why(0.6, 1.0)
 
 
 def _grid_r(kernel, nodes):
