@@ -8,8 +8,8 @@ force a term ``"on"`` or ``"off"``; ``"auto"`` lets the plan decide:
   the horizon, which the cosine already handles);
 - **indirect bounce**: left out for a lone object (nothing else to bounce off; self inter-reflection is not modelled);
 - **BSSRDF** (when the caller asks, ``bssrdf=``; the hierarchical and direct methods do): the transport-accurate white
-  Monte Carlo profiles, with their incidence-angle dependence where oblique tables exist, or the dipole
-  (:func:`~jaxsss.render.bssrdf.choose_bssrdf`);
+  Monte Carlo family's profiles with their incidence-angle dependence for ``g < 0.5`` and ``eta`` in [1, 1.6], or the
+  dipole (:func:`~jaxsss.render.bssrdf.choose_bssrdf`);
 - **single scattering**: left out when the BSSRDF already holds it (the white profiles hold every order) or when its
   estimated share of the exitance (:func:`~jaxsss.render.radiance.single_scattering_share`) is below the tolerance;
 - **cut-off radius**: pairs farther than ``ln(1/tol) / sigma_tr`` are dropped when that radius is smaller than the

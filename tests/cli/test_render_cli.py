@@ -59,7 +59,7 @@ def test_render_writes_png_npy_exr_and_report(capsys, tmp_path, small_scene):
 def test_render_overrides_and_direct_method(capsys, tmp_path, small_scene):
     out = tmp_path / "d.png"
     code, stdout, err = run_cli(capsys, "render", small_scene, "-o", out, "--method", "direct", "--resolution", 8, 6,
-                                "--no-exr")
+                                "--no-exr", "--bssrdf", "dipole")
     assert code == 0, err
     assert np.load(out.with_suffix(".npy")).shape == (6, 8, 3)
     assert not out.with_suffix(".exr").exists()

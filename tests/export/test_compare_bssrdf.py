@@ -59,3 +59,25 @@ def test_marble_teapot_against_its_path_traced_reference():
     assert np.all(np.array(m["mare_lit"]) <= 0.096), m["mare_lit"]
     assert np.all(np.array(m["mare_band"]) <= 0.41), m["mare_band"]
     assert np.all(np.abs(np.array(m["sum_ratio"]) - 1.0) <= 0.03), m["sum_ratio"]
+
+
+def test_skin1_at_its_own_eta_under_a_sky_against_its_path_traced_reference():
+    """skin1 at eta 1.3 (its table value) under skin1_sphere_env's sky: a pair that only the white Monte Carlo family
+    covers (oblique nodes from the ratio of the tabulated n = 1.33), against a 32768-spp Mitsuba reference (924 s;
+    its own noise 3.3 / 2.6 / 2.9% per pixel, part of mare_lit here). Achieved (2026-11-23): mare_lit 0.119 / 0.082 /
+    0.067, sums 0.884 / 0.929 / 0.955, the same as the tabulated eta 1.4 scene (0.130 / 0.081 / 0.059, sums 0.876 /
+    0.930 / 0.959). Before the family, auto fell back to the dipole plus single scattering here: mare_lit 0.102 /
+    0.374 / 0.657, sums 1.120 / 1.401 / 1.661. The goals (5%, 3%) are missed under the sky (both kernels are 5-12% too
+    dark, docs/path_tracer.md): the bounds are the achieved level plus about 10%, and the dipole's G and B sums fail
+    them (R: 1.120, within 12.8%)."""
+    scene = load_scene(REFERENCES / "skin1_sphere_env13.toml")
+    data = np.load(REFERENCES / "skin1_sphere_env13.npz")
+    ref, coverage = data["image"].astype(np.float64), data["coverage"].astype(np.float64)
+    result = render(scene)
+    plan = result.report["plan"]
+    assert plan["bssrdf"] == "white-oblique"
+    m = compare_images(result.image, ref, pixel_geometry(scene), coverage=coverage)
+    assert np.all(np.array(m["mare_lit"]) <= (0.131, 0.09, 0.074)), m["mare_lit"]
+    assert np.all(np.abs(np.array(m["sum_ratio"]) - 1.0) <= (0.128, 0.078, 0.05)), m["sum_ratio"]
+    old = compare_images(render(scene, bssrdf="dipole").image, ref, pixel_geometry(scene), coverage=coverage)
+    assert np.all(np.abs(np.array(old["sum_ratio"][1:]) - 1.0) > (0.078, 0.05)), old["sum_ratio"]

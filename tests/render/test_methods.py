@@ -42,11 +42,14 @@ def _scene(name: str, **render_settings):
 
 
 # (reference key, method, scene file, [render] overrides, resolution, options)
+# The references were rendered with the dipole, the plan's choice for marble (eta 1.5) and milk (eta 1.3) before the
+# white Monte Carlo family covered them (issue 17): the hierarchical and direct cases ask for it.
 CASES = [
-    ("hierarchical", "hierarchical", "marble_teapot.toml", {"max_samples": 4000}, RES, {}),
-    ("direct", "direct", "marble_teapot.toml", {"max_samples": 4000}, RES, {}),
+    ("hierarchical", "hierarchical", "marble_teapot.toml", {"max_samples": 4000}, RES, {"bssrdf": "dipole"}),
+    ("direct", "direct", "marble_teapot.toml", {"max_samples": 4000}, RES, {"bssrdf": "dipole"}),
     ("cached", "cached", "marble_teapot.toml", {"max_samples": 4000}, (64, 48), {"error_bound": 0.3, "always": True}),
-    ("hierarchical_occluder", "hierarchical", "milk_box_on_floor.toml", {"max_samples": 4000}, RES, {}),
+    ("hierarchical_occluder", "hierarchical", "milk_box_on_floor.toml", {"max_samples": 4000}, RES,
+     {"bssrdf": "dipole"}),
     ("photon", "photon", "photon_blocker.toml", {}, RES, {"n_photons": 3000}),
     ("layered", "layered", "layered_veins.toml", {}, RES, {"samples": 8}),
 ]

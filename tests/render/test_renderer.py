@@ -55,16 +55,16 @@ def test_flat_slab_under_uniform_light_gives_closed_form_rd():
     m_o = f_t * np.asarray(jaxsss.medium_total_diffuse_reflectance(medium))[0]
     expect = f_t * m_o / (np.pi * float(F_dt_external(1.3)))
     for method in ("hierarchical", "direct"):
-        img = render(scene, method=method).image[..., 0]
+        img = render(scene, method=method, bssrdf="dipole").image[..., 0]  # Eq. 15 is the dipole's
         assert abs(img.mean() / expect - 1) < 0.005, (method, img.mean() / expect)
         assert img.std() / img.mean() < 0.015, (method, img.std() / img.mean())
 
 
 def test_hierarchical_converges_to_direct(sphere):
-    direct = render(sphere, method="direct").image
+    direct = render(sphere, method="direct", bssrdf="dipole").image
     errors = []
     for eps in (2.0, 0.5, 0.05, 1e-6):
-        img = render(sphere, method="hierarchical", eps=eps).image
+        img = render(sphere, method="hierarchical", eps=eps, bssrdf="dipole").image
         lit = direct > 0
         errors.append(float(np.sqrt(np.mean(((img - direct)[lit] / direct[lit]) ** 2))))
     assert errors[-1] < 1e-10, errors
@@ -73,7 +73,7 @@ def test_hierarchical_converges_to_direct(sphere):
 
 
 def test_report_and_shapes(sphere):
-    res = render(sphere, resolution=(20, 12))
+    res = render(sphere, resolution=(20, 12), bssrdf="dipole")  # the report's shape, not the kernel
     assert res.image.shape == (12, 20, 3)
     assert np.isfinite(res.image).all() and (res.image >= 0).all()
     r = res.report
@@ -125,7 +125,7 @@ def test_leaving_terms_out_stays_within_tolerance():
 
 
 def test_image_gradient_matches_finite_differences(sphere):
-    prepared, _, _ = prepare(sphere, resolution=(8, 8), share_channels=False)
+    prepared, _, _ = prepare(sphere, resolution=(8, 8), share_channels=False, bssrdf="dipole")
 
     def loss(theta):
         medium = jaxsss.Medium(jnp.exp(theta[:3]), jnp.exp(theta[3:]), 1.3)
@@ -140,8 +140,8 @@ def test_fit_image_recovers_material(sphere):
 
     truth = sphere.material.medium
     # A noise-free target from the same geometry (and no material-dependent shortcuts: no cut-off radius).
-    target = np.asarray(prepare(sphere, cutoff=False, share_channels=False)[0].image(truth))
-    fit = fit_image(sphere, target, max_pixels=None)
+    target = np.asarray(prepare(sphere, cutoff=False, share_channels=False, bssrdf="dipole")[0].image(truth))
+    fit = fit_image(sphere, target, max_pixels=None, bssrdf="dipole")
     assert fit.converged, fit.message
     np.testing.assert_allclose(fit.sigma_a, truth.sigma_a, rtol=1e-3)
     np.testing.assert_allclose(fit.sigma_s_prime, truth.sigma_s_prime, rtol=1e-3)
@@ -157,8 +157,8 @@ def test_texture_scales_the_irradiance_samples(tmp_path):
     textured = parse_scene({**_scene_dict(), "material": {**base, "texture": "grey.png"}}, path="<test>",
                            base_dir=tmp_path)
     medium = plain.material.medium
-    a = np.asarray(prepare(plain, resolution=(8, 8))[0].exitance(medium))
-    b = np.asarray(prepare(textured, resolution=(8, 8))[0].exitance(medium))
+    a = np.asarray(prepare(plain, resolution=(8, 8), bssrdf="dipole")[0].exitance(medium))
+    b = np.asarray(prepare(textured, resolution=(8, 8), bssrdf="dipole")[0].exitance(medium))
     np.testing.assert_allclose(b, a * float(colour.cctf_decoding(188 / 255, function="sRGB")), rtol=1e-12)
 
 
