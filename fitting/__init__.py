@@ -7,10 +7,13 @@ This package is installed with ``jaxsss`` and imports only its public API (``imp
   when there are several; :class:`ProfileFit` holds estimates, standard errors, correlation and solver status. Each
   fit is solved from three starts (the basins of a grid over albedo and ``l_d``), and a fit that may be wrong says
   so: ``ProfileFit.suspect`` (residuals above the given noise, another minimum as good, a smooth misfit),
-  ``ProfileFit.reliable`` and a :class:`FitWarning`.
+  ``ProfileFit.reliable`` and a :class:`FitWarning`. Tabulated (rough) models, the ``mc`` family, get more: valley
+  scans from the solution (their noise makes local minima along it), a secant Jacobian for the standard errors, a
+  warning where the table's own noise exceeds 3% on the fit range, and relative far-field data (beyond 0.5 ``l_d``)
+  reported as not identifiable.
 - :func:`fit_jacobian_wrt_data`: derivatives of the fitted parameters with respect to the data (implicit function
   theorem).
-- Registries: :data:`FORWARD_MODELS` (``dipole``, ``multipole``; :func:`register_model` adds more) and
+- Registries: :data:`FORWARD_MODELS` (``dipole``, ``multipole``, ``mc``; :func:`register_model` adds more) and
   :data:`SOLVERS` (``levenberg_marquardt``, ``gauss_newton``, ``dogleg``).
 - I/O: :func:`read_profile_csv`, :func:`load_profile_npy`, :func:`read_profile` -> :class:`ProfileData`;
   :func:`read_mco` reads MCML 1.2.2's ``.mco`` output (:class:`McoRun`, in mm; ``read_profile`` dispatches ``.mco``);

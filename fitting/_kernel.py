@@ -61,6 +61,7 @@ ALT_SEPARATION = 1e-3  # ... if it differs by more than this in log sigma_a or l
 # log sigma_s') on its side. The mc sweep's fits that stopped in minima of the table noise sat 0.25-0.4 from the
 # truth along the valley, some behind two barriers (benchmarks/fit_sweep.py; docs/benchmarks.md).
 VALLEY_SCAN = (0.15, 0.3, 0.45, 0.6, 0.75, 0.9)
+VALLEY_ROUNDS = 3  # scans from the best solution so far: the noise's minima can form a staircase along the valley
 # The covariance of a rough model's fit comes from a central-difference Jacobian of this step in the log-parameters
 # (one radial bin of the white-MC tables is 0.115 in log r): the local derivative of an interpolant through noisy
 # nodes measures the noise's curvature, not the data's information, and gave standard errors of 1-2% for far-field
@@ -487,8 +488,8 @@ def _chosen(thetas, results, stationary, costs):
 
 def valley_starts(thetas, results, steps, stationary, mask, r, y, se, eta, d, cfg: Config):
     """Two starts ``(2, p)`` either side of the chosen solution along its valley: on the major axis of the covariance
-    (``(J^T J)^-1`` at the solution; the scale and ``eta``, when free, move with it as the axis says), the point of
-    lowest cost among :data:`VALLEY_SCAN` distances in ``(log sigma_a, log sigma_s')`` on each side. For rough
+    (``(J^T J)^-1`` at the solution; ``eta``, when free, moves with it as the axis says; a free scale is profiled out
+    at every point), the point of lowest cost among :data:`VALLEY_SCAN` distances in ``(log sigma_a, log sigma_s')`` on each side. For rough
     (tabulated) models, whose noise makes shallow local minima where the data constrain one combination of the
     parameters only."""
     TRACES["valley"] += 1
@@ -508,17 +509,32 @@ def valley_starts(thetas, results, steps, stationary, mask, r, y, se, eta, d, cf
     v = jnp.where(jnp.all(jnp.isfinite(v)), v, jnp.zeros_like(v).at[0].set(1.0).at[1].set(-1.0) / jnp.sqrt(2.0))
     t = jnp.asarray(VALLEY_SCAN, theta.dtype)
     side = jnp.concatenate([t, -t])[:, None] * v[None, :] + theta[None, :]  # (2 S, p)
-    cost = jax.vmap(lambda th: jnp.sum(residuals(th, args) ** 2))(side)
+    if cfg.relative:
+        # The scale profiled out at every scanned point (least squares): the axis's linear scale drifts far out.
+        wy = jnp.where(mask, w * y, 0.0).reshape(-1)
+
+        def scan_point(th):
+            wm = residuals(th.at[2].set(0.0), args) + wy  # w * model at unit scale
+            scale = jnp.sum(wm * wy) / jnp.sum(wm * wm)
+            return jnp.sum((scale * wm - wy) ** 2), th.at[2].set(jnp.log(jnp.where(scale > 0, scale, 1.0)))
+
+        cost, side = jax.vmap(scan_point)(side)
+    else:
+        cost = jax.vmap(lambda th: jnp.sum(residuals(th, args) ** 2))(side)
     cost = jnp.where(jnp.isfinite(cost), cost, jnp.inf).reshape(2, -1)
     k = jnp.argmin(cost, axis=1)
     return side.reshape(2, t.shape[0], -1)[jnp.arange(2), k]
 
 
 def with_valley(sol, mask, r, y, se, eta, d, cfg: Config):
-    """``sol`` (the starts' solutions) extended by the two valley starts' solutions (:func:`valley_starts`)."""
-    v0 = valley_starts(*sol, mask, r, y, se, eta, d, cfg)
-    extra = solve_starts(v0, mask, r, y, se, eta, d, cfg)
-    return jax.tree_util.tree_map(lambda a, b: jnp.concatenate([a, b]), tuple(sol), tuple(extra))
+    """``sol`` (the starts' solutions) extended by :data:`VALLEY_ROUNDS` rounds of two valley starts' solutions
+    (:func:`valley_starts`, each round from the best solution so far)."""
+    sol = tuple(sol)
+    for _ in range(VALLEY_ROUNDS):
+        v0 = valley_starts(*sol, mask, r, y, se, eta, d, cfg)
+        extra = solve_starts(v0, mask, r, y, se, eta, d, cfg)
+        sol = jax.tree_util.tree_map(lambda a, b: jnp.concatenate([a, b]), sol, tuple(extra))
+    return sol
 
 
 # --- 4. Choice among the starts, covariance, suspect checks --------------------------------------------------------

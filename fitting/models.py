@@ -175,6 +175,12 @@ carries most of the information on the albedo. 0.1 l_u lies beyond the table's m
 
 
 MC_R_MAX_LD = 10.0
+ROUGH_RELATIVE_R_MIN_LD = 0.5
+"""Relative data (a free scale) fitted with a tabulated (rough) model from ``r_min`` beyond this many ``l_d`` (at the
+solution): reported as not identifiable. Beyond the near field the shape of a relative profile separates sigma_a
+from sigma_s' only through percent-level departures from the diffusion far field, the size of the tables' noise
+there; in the mc sweep every relative fit that started at 0.79-1.84 ``l_d`` and sat 25-100% off along the valley
+reported standard errors of 1-6% (benchmarks/fit_sweep.py). Absolute data, or radii nearer the source, separate them."""
 MODEL_NOISE_LIMIT = 0.03
 """A model whose own Monte Carlo noise over the fit range (median relative standard error per annulus, at the
 solution) exceeds this cannot place a fit: its noise makes local minima deeper than the data's information (the mc

@@ -33,7 +33,7 @@ from jaxsss.validate import trusted_traces
 from jaxsss.fresnel import resolve_fresnel_method
 from fitting import _kernel as K
 from fitting.io import ProfileData
-from fitting.models import MODEL_NOISE_LIMIT, resolve_model
+from fitting.models import MODEL_NOISE_LIMIT, ROUGH_RELATIVE_R_MIN_LD, resolve_model
 from fitting.result import CONDITION_LIMIT, CORRELATION_LIMIT, ProfileFit
 from fitting.solvers import resolve_solver
 
@@ -538,8 +538,8 @@ def _fit(owner, batched, r, R, R_stderr, T, T_stderr, *, eta, model, thickness, 
             if need <= cfg.static:
                 break
             start = thetas
-        if model.rough:
-            # Two more starts along the valley of the solution (tabulated models; see fitting._kernel.valley_starts).
+        for _ in range(K.VALLEY_ROUNDS if model.rough else 0):
+            # Two more starts along the valley of the best solution (tabulated models; fitting._kernel.valley_starts).
             v0 = _run("valley", cfg, shard, pb.r, thetas, results, steps_total, stationary, mask, y, se, eta_p, d)
             extra = _solve(cfg, shard, pb.r, v0, mask, y, se, eta_p, d)
             thetas, results, steps_total, stationary = jax.tree_util.tree_map(
@@ -578,6 +578,15 @@ def _fit(owner, batched, r, R, R_stderr, T, T_stderr, *, eta, model, thickness, 
     corr = np.asarray(out["correlation"])
     cond = np.asarray(out["condition_number"])
     identifiable = (np.abs(corr) <= CORRELATION_LIMIT) & (cond <= CONDITION_LIMIT)
+    if model.rough and relative:
+        # Relative data of a tabulated model from beyond ROUGH_RELATIVE_R_MIN_LD: sigma_a and sigma_s' not separable.
+        sa_f, ss_f = np.asarray(out["sigma_a"]), np.asarray(out["sigma_s_prime"])
+        far = np.asarray(out["r_min"]) * np.sqrt(3.0 * sa_f * (sa_f + ss_f)) > ROUGH_RELATIVE_R_MIN_LD
+        if np.any(far):
+            identifiable = identifiable & ~far
+            notes.append(f"{int(far.sum())} fit(s) of relative data start beyond {ROUGH_RELATIVE_R_MIN_LD:g} l_d: "
+                         f"the {model.name} model's table noise (~1% far out) is as large as what separates "
+                         "sigma_a from sigma_s' there, so they are reported as not identifiable")
     model_warnings = []
     if ratio_min is not None:
         ratio = np.asarray(out["sigma_a"]) / np.asarray(out["sigma_s_prime"])

@@ -550,22 +550,24 @@ def white_family_profile(r, sigma_a, sigma_s_prime, g, n, family: WhiteFamily | 
     Raises:
         ValueError: an argument outside its range (naming it, its value and the range).
     """
+    return _dispatch(_family_kernel, "white_family_profile", r, sigma_a, sigma_s_prime, g, n, family)
+
+
+def _dispatch(kernel, owner, r, sigma_a, sigma_s_prime, g, n, family):
+    """Check the arguments (errors name ``owner``) and run ``kernel`` with the Hermite weights: at a fixed scalar
+    ``(g, n)``, as in fits, on the block of nodes around it only (:func:`_block`); otherwise on the whole grid."""
     fam = load_white_family() if family is None else family
     if not isinstance(fam, WhiteFamily):
-        raise ValueError(f"white_family_profile(family={family!r}) must be a WhiteFamily (see load_white_family)")
-    owner = "white_family_profile"
+        raise ValueError(f"{owner}(family={family!r}) must be a WhiteFamily (see load_white_family)")
     r = check_range(r, "r", 0.0, None, owner=owner)
     sigma_a = check_range(sigma_a, "sigma_a", 0.0, None, owner=owner)
     sigma_s_prime = check_range(sigma_s_prime, "sigma_s_prime", 0.0, None, lo_open=True, owner=owner)
     g = check_range(g, "g", fam.g_nodes[0], fam.g_nodes[-1], owner=owner)
     n = check_range(n, "n", fam.n_nodes[0], fam.n_nodes[-1], owner=owner)
     if is_concrete(g) and is_concrete(n) and np.ndim(g) == 0 and np.ndim(n) == 0:
-        # Fixed (g, n), as in fits: only the block of nodes around it.
         sub, wg, wn = _block(fam, float(g), float(n))
-        return _family_kernel(r, sigma_a, sigma_s_prime, wg, wn, sub)
-    wg = _hermite_weights(g, fam.g_nodes)
-    wn = _hermite_weights(n, fam.n_nodes)
-    return _family_kernel(r, sigma_a, sigma_s_prime, wg, wn, fam)
+        return kernel(r, sigma_a, sigma_s_prime, wg, wn, sub)
+    return kernel(r, sigma_a, sigma_s_prime, _hermite_weights(g, fam.g_nodes), _hermite_weights(n, fam.n_nodes), fam)
 
 
 @eqx.filter_jit
@@ -592,18 +594,7 @@ def white_family_profile_stderr(r, sigma_a, sigma_s_prime, g, n, family: WhiteFa
     travel that far) and near the source at strong absorption (few short paths leave at that radius), where a fit can
     stop in a local minimum of the tables' noise. Same arguments and shapes as :func:`white_family_profile`; not
     differentiable in any useful sense."""
-    fam = load_white_family() if family is None else family
-    owner = "white_family_profile_stderr"
-    r = check_range(r, "r", 0.0, None, owner=owner)
-    sigma_a = check_range(sigma_a, "sigma_a", 0.0, None, owner=owner)
-    sigma_s_prime = check_range(sigma_s_prime, "sigma_s_prime", 0.0, None, lo_open=True, owner=owner)
-    g = check_range(g, "g", fam.g_nodes[0], fam.g_nodes[-1], owner=owner)
-    n = check_range(n, "n", fam.n_nodes[0], fam.n_nodes[-1], owner=owner)
-    if is_concrete(g) and is_concrete(n) and np.ndim(g) == 0 and np.ndim(n) == 0:
-        sub, wg, wn = _block(fam, float(g), float(n))
-        return _family_stderr_kernel(r, sigma_a, sigma_s_prime, wg, wn, sub)
-    return _family_stderr_kernel(r, sigma_a, sigma_s_prime, _hermite_weights(g, fam.g_nodes),
-                                 _hermite_weights(n, fam.n_nodes), fam)
+    return _dispatch(_family_stderr_kernel, "white_family_profile_stderr", r, sigma_a, sigma_s_prime, g, n, family)
 
 
 def covers(g, n) -> bool:
