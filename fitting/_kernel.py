@@ -18,6 +18,8 @@ Pieces, each a pure traceable function of arrays with a static :class:`Config`:
    fits that sit on the float64 rounding floor of noisy data), or by MINPACK's relative-reduction test. Other
    solvers go through :func:`optimistix.least_squares`. :func:`lm_block` runs a few iterations of many problems at
    once so that a batch can retire converged problems and refill their slots (``fitting.profile_fit``).
+   Rough (tabulated) models then get :func:`with_valley`: scans along the solution's valley and starts from their
+   best points (the tables' noise makes local minima there).
 4. :func:`finish` -- the covariance from ``J^T J`` at the chosen solution and the suspect-fit checks.
 
 Residuals: ``w (scale * model(r) - data)`` on the points inside the fit range (zero elsewhere), with
@@ -56,10 +58,10 @@ ALT_DCHI2 = 4.0  # another minimum within this many units of chi^2 (in the fit's
 STRUCTURE_RHO = 0.5  # lag-1 autocorrelation of the residuals above this (no standard errors given) ...
 STRUCTURE_RMS = 1e-6  # ... with an rms relative misfit above this: a systematic misfit
 ALT_SEPARATION = 1e-3  # ... if it differs by more than this in log sigma_a or log sigma_s' (and 3 standard errors)
-# Models tabulated by Monte Carlo (``ForwardModel.rough``): two more starts along the valley of the first solution
-# (the covariance's major axis), each the lowest-cost point of a scan at VALLEY_SCAN distances in (log sigma_a,
-# log sigma_s') on its side. The mc sweep's fits that stopped in minima of the table noise sat 0.25-0.4 from the
-# truth along the valley, some behind two barriers (benchmarks/fit_sweep.py; docs/benchmarks.md).
+# Models tabulated by Monte Carlo (``ForwardModel.rough``): VALLEY_ROUNDS rounds of two more starts along the valley
+# of the best solution so far (the covariance's major axis), each the lowest-cost point of a scan at VALLEY_SCAN
+# distances in (log sigma_a, log sigma_s') on its side. The mc sweep's fits that stopped in minima of the table noise
+# sat 0.25-0.9 from the truth along the valley, some behind two barriers (benchmarks/fit_sweep.py; docs/benchmarks.md).
 VALLEY_SCAN = (0.15, 0.3, 0.45, 0.6, 0.75, 0.9)
 VALLEY_ROUNDS = 3  # scans from the best solution so far: the noise's minima can form a staircase along the valley
 # The covariance of a rough model's fit comes from a central-difference Jacobian of this step in the log-parameters
@@ -489,9 +491,9 @@ def _chosen(thetas, results, stationary, costs):
 def valley_starts(thetas, results, steps, stationary, mask, r, y, se, eta, d, cfg: Config):
     """Two starts ``(2, p)`` either side of the chosen solution along its valley: on the major axis of the covariance
     (``(J^T J)^-1`` at the solution; ``eta``, when free, moves with it as the axis says; a free scale is profiled out
-    at every point), the point of lowest cost among :data:`VALLEY_SCAN` distances in ``(log sigma_a, log sigma_s')`` on each side. For rough
-    (tabulated) models, whose noise makes shallow local minima where the data constrain one combination of the
-    parameters only."""
+    at every point), the point of lowest cost among :data:`VALLEY_SCAN` distances in ``(log sigma_a, log sigma_s')``
+    on each side. For rough (tabulated) models, whose noise makes shallow local minima where the data constrain one
+    combination of the parameters only."""
     TRACES["valley"] += 1
     w, _ = weights(y, se, cfg)
     args = (r, y, w, mask, eta, d, cfg)
