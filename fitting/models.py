@@ -72,8 +72,9 @@ class ForwardModel(NamedTuple):
             values (a Monte Carlo table's noise), or ``None`` (exact). A fit whose range has a median above
             :data:`MODEL_NOISE_LIMIT` at the solution gets a model warning.
         rough: the model is tabulated Monte Carlo whose noise makes shallow local minima along the fit's valley
-            (the ``mc`` family: ~0.5-3% per annulus far out); fits add two starts along it (``fitting._kernel``'s
-            :func:`valley_starts`).
+            (the ``mc`` family: ~0.5-3% per annulus far out); fits add valley scans and their starts, take the
+            covariance from a secant Jacobian, and report relative far-field fits as not identifiable
+            (``fitting._kernel.with_valley``, :data:`ROUGH_RELATIVE_R_MIN_LD`).
     """
 
     name: str
