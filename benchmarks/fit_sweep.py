@@ -67,9 +67,11 @@ def mc_precise(case) -> bool:
     sa, ss, r = case["sa"], case["ss"], case["r"]
     ld = np.asarray(jaxsss.Medium(sa, ss, MC_ETA).l_d)
     lo = np.maximum(np.asarray(case["kw"].get("r_min", 0.0)), MC_R_MIN_LU / (sa + ss))
+    # One evaluation on the whole grid (a fixed shape: no recompilation per case), then each channel's range.
+    rel = np.asarray(mc_R_stderr(r[:, None], sa, ss, (MC_G, MC_ETA)))  # (N, 3)
     for c in range(3):
         m = (r >= lo[c]) & (r <= MC_R_MAX_LD * ld[c])
-        if m.sum() > 2 and np.median(np.asarray(mc_R_stderr(r[m], sa[c], ss[c], (MC_G, MC_ETA)))) > MODEL_NOISE_LIMIT:
+        if m.sum() > 2 and np.median(rel[m, c]) > MODEL_NOISE_LIMIT:
             return False
     return True
 
