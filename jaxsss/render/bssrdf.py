@@ -70,6 +70,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from jaxsss.medium import Medium
+from jaxsss.render.curvature import curvature_ratio, pair_curvature
 
 __all__ = ["BSSRDFS", "GRID_PER_DECADE", "OBLIQUE_MUS", "WhiteKernel", "chandrasekhar_h", "choose_bssrdf",
            "exit_distribution", "exit_radiance_nodes", "hat_weights", "surface_tangents",
@@ -353,6 +354,7 @@ class WhiteKernel(eqx.Module):
     log_R: jax.Array
     sigma_s: jax.Array
     shift_length: jax.Array | None = None
+    curvature: tuple | None = None  # (sigma_a, sigma_s', A), each (C,): the curvature ratio's medium (None: flat)
 
     def profile(self, r):
         """``R_k(r)`` in 1/mm^2 at distances ``r`` (mm): ``(P,)`` gives ``(P, K, C)``; ``(P, K, C)`` is evaluated
@@ -384,13 +386,26 @@ class WhiteKernel(eqx.Module):
         # Oblique incidence: the profile about the shifted point of entry.
         return jnp.sqrt(jnp.maximum(jnp.sum(d * d, axis=1), 1e-300)), f
 
-    def pair(self, delta, flux):
-        """``(P, K, C)``: ``R_k(|delta - s_k|) F_k`` for offsets ``delta = x - P`` ``(P, 3)`` mm (``s_k = 0`` without
-        a shift). The nodes stay apart: their exit distributions differ (:func:`exit_radiance_nodes`)."""
-        r, f = self._distance(delta, flux)
-        return self.profile(r) * f
+    def _curved(self, r, delta, normals):
+        """``R_k(r)`` ``(P, K, C)``, times the curvature ratio of :mod:`jaxsss.render.curvature` when the kernel has
+        one and the pairs' normals ``(n_x, n_P)`` (each ``(P, 3)``) are given."""
+        if r.ndim == 1:
+            r = jnp.broadcast_to(r[:, None, None], (r.shape[0],) + self.log_R.shape[:1] + self.log_R.shape[-1:])
+        out = self.profile(r)
+        if self.curvature is None or normals is None:
+            return out
+        kappa = pair_curvature(delta, *normals)[:, None, None]
+        # Half-space profile x the sphere-to-plane diffusion ratio of the pair's curvature.
+        return out * curvature_ratio(r, kappa, *self.curvature)
 
-    def near_terms(self, delta, flux, area, rho0):
+    def pair(self, delta, flux, normals=None):
+        """``(P, K, C)``: ``R_k(|delta - s_k|) F_k`` for offsets ``delta = x - P`` ``(P, 3)`` mm (``s_k = 0`` without
+        a shift), times the curvature ratio when ``normals = (n_x, n_P)`` are given. The nodes stay apart: their exit
+        distributions differ (:func:`exit_radiance_nodes`)."""
+        r, f = self._distance(delta, flux)
+        return self._curved(r, delta, normals) * f
+
+    def near_terms(self, delta, flux, area, rho0, normals=None):
         """A near pair's ``(point, w F, w A)``, each ``(P, K, C)``, with the near-field weight at the distance from
         the *shifted* entry point, so that the point part ``(1 - w) R`` vanishes where ``R`` peaks
         (:func:`jaxsss.render.radiance.exitance_near`)."""
@@ -400,7 +415,7 @@ class WhiteKernel(eqx.Module):
         if r.ndim == 1:
             r = jnp.broadcast_to(r[:, None, None], f.shape)
         w = near_weight(r, rho0)
-        return (1.0 - w) * self.profile(r) * f, w * f, w * area[:, None, None]
+        return (1.0 - w) * self._curved(r, delta, normals) * f, w * f, w * area[:, None, None]
 
     def weighted_disc(self, rho0):
         """``(K, C)``: ``I_w = int_0^rho0 w(r) 2 pi r R_k(r) dr`` with the near-field weight ``w`` of
@@ -433,16 +448,24 @@ def _log(x):
 
 
 def white_kernel(medium: Medium, sources: WhiteSources, mus: tuple = (1.0,) + KERNEL_MUS,
-                 shift: bool = False) -> WhiteKernel:
+                 shift: bool = False, curvature: bool = False) -> WhiteKernel:
     """Tabulate the profiles at incidence cosines ``mus`` (1, then the oblique nodes of ``sources``, from
     :func:`white_tables`) for ``medium`` on the grid (differentiable in ``sigma_a`` and ``sigma_s'``): normal incidence
     from the white Monte Carlo family, oblique nodes from ``sources`` (module docstring). ``shift``: shift the
     oblique profiles forward (:data:`SHIFT_RATIO`; the samples' flux then carries the travel directions). Jitted;
-    the family is loaded here, outside the trace (its first load runs JAX code on concrete values)."""
+    the family is loaded here, outside the trace (its first load runs JAX code on concrete values). ``curvature``:
+    the kernel carries the medium for the curvature ratio (:mod:`jaxsss.render.curvature`), applied to the pairs whose
+    normals the sums pass."""
     from jaxsss.mc.white_family import load_white_family
 
     load_white_family()
-    return _white_kernel(medium, sources, mus, shift)
+    kernel = _white_kernel(medium, sources, mus, shift)
+    if not curvature:
+        return kernel
+    c = kernel.sigma_s.shape
+    params = tuple(jnp.broadcast_to(jnp.asarray(v, kernel.sigma_s.dtype), c)
+                   for v in (medium.sigma_a, medium.sigma_s_prime, medium.A))
+    return eqx.tree_at(lambda k: k.curvature, kernel, params, is_leaf=lambda x: x is None)
 
 
 @eqx.filter_jit

@@ -82,14 +82,14 @@ class DipoleKernel(eqx.Module):
 
     medium: Medium
 
-    def pair(self, delta, flux):
+    def pair(self, delta, flux, normals=None):  # normals: the white kernels' curvature; the dipole stays flat
         r = jnp.sqrt(jnp.maximum(jnp.sum(delta * delta, axis=-1), 1e-300))
         return _dipole(r[:, None], self.medium) * flux
 
     def disc(self, spread, rho0):
         return spread * weighted_disc_integral(rho0, self.medium)
 
-    def near_terms(self, delta, flux, area, rho0):
+    def near_terms(self, delta, flux, area, rho0, normals=None):
         """A near pair's ``(point, w Phi, w A)`` (module docstring's split): the point part ``(1 - w) R_d Phi`` and the
         weighted flux and area the disc averages."""
         r = jnp.sqrt(jnp.maximum(jnp.sum(delta * delta, axis=-1), 1e-300))
@@ -222,7 +222,7 @@ def weighted_disc_integral(rho0, medium: Medium):
 
 
 def exitance_near(medium: Medium, query_pos, sample_pos, sample_area, sample_flux, near_query, near_sample, rho0,
-                  *, shared_channel=False, kernel=None):
+                  *, shared_channel=False, kernel=None, normals=None):
     """The near-field part of ``M_o`` (module docstring), ``(Q, C)`` (``(Q, K, C)`` for a kernel with incidence
     nodes, :class:`jaxsss.render.bssrdf.WhiteKernel`).
 
@@ -234,6 +234,8 @@ def exitance_near(medium: Medium, query_pos, sample_pos, sample_area, sample_flu
         rho0: the near-field radius, mm.
         kernel: the profile (:class:`DipoleKernel` of ``medium`` by default; :mod:`jaxsss.render.bssrdf`), whose
             sample flux may carry extra axes (``(N, K, C)``).
+        normals: optional ``(query normals (Q, 3), sample normals (N, 3))``: the pairs' curvature for a kernel that
+            corrects for it (:mod:`jaxsss.render.curvature`; the dipole ignores them).
     """
     n_q = query_pos.shape[0]
     kernel = _kernel(medium, kernel, shared_channel)
@@ -242,14 +244,16 @@ def exitance_near(medium: Medium, query_pos, sample_pos, sample_area, sample_flu
     def seg(v):
         return jax.ops.segment_sum(v, near_query, num_segments=n_q + 1, indices_are_sorted=True)[:n_q]
 
-    point, w_flux, w_area = kernel.near_terms(delta, sample_flux[near_sample], sample_area[near_sample], rho0)
+    pair_normals = None if normals is None else (normals[0][jnp.minimum(near_query, n_q - 1)], normals[1][near_sample])
+    point, w_flux, w_area = kernel.near_terms(delta, sample_flux[near_sample], sample_area[near_sample], rho0,
+                                              pair_normals)
     area = seg(w_area)
     spread = seg(w_flux) / _per_pair(jnp.where(area > 0, area, 1.0), w_flux)
     return kernel.disc(spread, rho0) + seg(point)
 
 
 def exitance_pairs(medium: Medium, query_pos, ent_pos, ent_flux, pair_query, pair_entity, *, shared_channel=False,
-                   kernel=None):
+                   kernel=None, normals=None):
     """Radiant exitance ``M_o`` (W/mm^2) at every query point, summed over an interaction list.
 
     ``M_o(x_q) = sum_{k: q_k = q} Phi_{e_k} R_d(|x_q - P_{e_k}|)`` (hierarchical paper Eq. 8 and 13, with the
@@ -264,6 +268,7 @@ def exitance_pairs(medium: Medium, query_pos, ent_pos, ent_flux, pair_query, pai
             ``pair_query = Q``); query indices ascending.
         shared_channel: evaluate the profile once for all channels (identical channel parameters).
         kernel: the profile (default the dipole of ``medium``; see :func:`exitance_near`).
+        normals: optional ``(query normals (Q, 3), entity normals (E, 3))`` (see :func:`exitance_near`).
 
     Returns:
         ``(Q, C)`` (``(Q,) + kernel.value_shape``). The blocks are summed in a ``lax.scan`` whose body is rematerialised in reverse mode, so memory
@@ -274,7 +279,8 @@ def exitance_pairs(medium: Medium, query_pos, ent_pos, ent_flux, pair_query, pai
 
     def contrib(q, e):
         # Hierarchical paper Eq. 13: each entity contributes Phi_v R_d(|x - P_v|).
-        return kernel.pair(query_pos[q] - ent_pos[e], ent_flux[e])
+        return kernel.pair(query_pos[q] - ent_pos[e], ent_flux[e],
+                           None if normals is None else (normals[0][q], normals[1][e]))
 
     return scan_pairs(contrib, n_q, kernel.value_shape(ent_flux.shape), ent_flux.dtype, pair_query, pair_entity)
 
@@ -385,26 +391,31 @@ def exitance_near_gradient(medium: Medium, query_pos, sample_pos, sample_area, s
 
 
 def exitance_direct(medium: Medium, query_pos, sample_pos, sample_flux, sample_area, rho0, *, block: int = 64,
-                    shared_channel=False, kernel=None):
+                    shared_channel=False, kernel=None, normals=None):
     """Brute-force ``M_o`` at every query point from every sample (the reference method), ``(Q, C)`` (``(Q,) +
     kernel.value_shape``), with the same
     near-field split (radius ``rho0``, mm; 0 for pure point sums) as the hierarchical method.
 
     Queries are processed in blocks of ``block`` against all ``N`` samples (memory ``block * N`` times the size of
-    one sample's flux). ``kernel``: the profile (default the dipole of ``medium``; see :func:`exitance_near`).
+    one sample's flux). ``kernel`` and ``normals``: as in :func:`exitance_near`.
     """
     n_q = query_pos.shape[0]
     pad = (-n_q) % block
     qp = jnp.concatenate([query_pos, jnp.broadcast_to(query_pos[:1], (pad, 3))]).reshape(-1, block, 3)
+    qn = None if normals is None else jnp.concatenate(
+        [normals[0], jnp.broadcast_to(normals[0][:1], (pad, 3))]).reshape(-1, block, 3)
     kernel = _kernel(medium, kernel, shared_channel)
     n_s = sample_pos.shape[0]
 
     @jax.checkpoint
-    def one(q):
+    def one(args):
+        q, n = args
         delta = (q[:, None, :] - sample_pos[None, :, :]).reshape(-1, 3)  # (block * N, 3)
         flux = jnp.broadcast_to(sample_flux[None], (q.shape[0],) + sample_flux.shape)
         area = jnp.broadcast_to(sample_area[None], (q.shape[0], n_s)).reshape(-1)
-        point, w_flux, w_area = kernel.near_terms(delta, flux.reshape((-1,) + sample_flux.shape[1:]), area, rho0)
+        pair_normals = None if n is None else (jnp.repeat(n, n_s, axis=0), jnp.tile(normals[1], (q.shape[0], 1)))
+        point, w_flux, w_area = kernel.near_terms(delta, flux.reshape((-1,) + sample_flux.shape[1:]), area, rho0,
+                                                  pair_normals)
 
         def per_query(v):
             return jnp.sum(v.reshape((q.shape[0], n_s) + v.shape[1:]), axis=1)
@@ -413,7 +424,7 @@ def exitance_direct(medium: Medium, query_pos, sample_pos, sample_flux, sample_a
         spread = per_query(w_flux) / _per_pair(jnp.where(w_area > 0, w_area, 1.0), per_query(w_flux))
         return per_query(point) + kernel.disc(spread, rho0)
 
-    return jax.lax.map(one, qp).reshape((-1,) + kernel.value_shape(sample_flux.shape))[:n_q]
+    return jax.lax.map(one, (qp, qn)).reshape((-1,) + kernel.value_shape(sample_flux.shape))[:n_q]
 
 
 def exit_radiance(medium: Medium, exitance, cos_o):

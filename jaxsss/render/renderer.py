@@ -64,6 +64,8 @@ class Prepared(ReflectingPoints):
     # The BSSRDF kernel (jaxsss.render.bssrdf): its oblique sources (white_tables; None: the dipole).
     bssrdf_tables: tuple | None = None
     light_tangent: jax.Array | None = None  # (N, L, 3) travel direction inside, on the surface (white-oblique)
+    # (E, 3) unit area-weighted mean normal of each entity (white kernels: the pairs' curvature; None: flat)
+    ent_normal: jax.Array | None = None
     bssrdf: str = eqx.field(static=True, default="dipole")
     bssrdf_mus: tuple = eqx.field(static=True, default=(1.0,))
     bssrdf_exit: str = eqx.field(static=True, default="fresnel")
@@ -86,7 +88,13 @@ class Prepared(ReflectingPoints):
         """The sums' kernel for ``medium``: None (the dipole) or a :class:`~jaxsss.render.bssrdf.WhiteKernel`."""
         if self.bssrdf == "dipole":
             return None
-        return white_kernel(medium, self.bssrdf_tables, self.bssrdf_mus, shift=self.light_tangent is not None)
+        return white_kernel(medium, self.bssrdf_tables, self.bssrdf_mus, shift=self.light_tangent is not None,
+                            curvature=self.ent_normal is not None)
+
+    @property
+    def normals(self):
+        """``(query normals, entity normals)`` for the curvature of the pairs, or None (:mod:`jaxsss.render.curvature`)."""
+        return None if self.ent_normal is None else (self.query_normal, self.ent_normal)
 
     def exitance(self, medium: Medium, blocks: slice | None = None):
         """Radiant exitance ``M_o`` at the shaded points, ``(Q, C)`` W/mm^2 (``blocks``: part of the pair list)."""
@@ -94,13 +102,13 @@ class Prepared(ReflectingPoints):
         kernel = self.kernel(medium)
         if self.method == "direct":
             return rad.exitance_direct(medium, self.query_pos, self.sample_pos, flux, self.areas, self.rho0,
-                                       shared_channel=self.shared_channel, kernel=kernel)
+                                       shared_channel=self.shared_channel, kernel=kernel, normals=self.normals)
         ent_flux = rad.entity_flux(flux, self.ent_start, self.ent_stop)
         pq, pe = self.pair_query, self.pair_entity
         if blocks is not None:
             pq, pe = pq[blocks], pe[blocks]
         far = rad.exitance_pairs(medium, self.query_pos, self.ent_pos, ent_flux, pq, pe,
-                                 shared_channel=self.shared_channel, kernel=kernel)
+                                 shared_channel=self.shared_channel, kernel=kernel, normals=self.normals)
         return far + self.exitance_near(medium, flux, kernel)
 
     def exitance_gradient(self, medium: Medium, *, near: bool = True):
@@ -135,7 +143,8 @@ class Prepared(ReflectingPoints):
     def exitance_near(self, medium: Medium, flux, kernel=None):
         """The near-field disc part of ``M_o`` (hierarchical method), ``(Q, C)``."""
         return rad.exitance_near(medium, self.query_pos, self.sample_pos, self.areas, flux, self.near_query,
-                                 self.near_sample, self.rho0, shared_channel=self.shared_channel, kernel=kernel)
+                                 self.near_sample, self.rho0, shared_channel=self.shared_channel, kernel=kernel,
+                                 normals=self.normals)
 
     def image(self, medium: Medium):
         """The linear radiance image ``(H, W, C)`` as a JAX function of the medium (differentiable; jitted, with
@@ -158,6 +167,16 @@ def irradiance_pass(scene, plan: ScenePlan):
     return geometry, samples, tree, time.perf_counter() - t0
 
 
+def entity_normals(weighted_normals: np.ndarray, tree) -> np.ndarray:
+    """``(E, 3)`` unit mean normal of every octree entity (samples, then nodes) from the samples' area-weighted
+    normals ``(N, 3)`` in octree order (a node: the sum over its range of samples, normalised)."""
+    n = len(weighted_normals)
+    cs = np.concatenate([np.zeros((1, 3)), np.cumsum(weighted_normals, axis=0)])
+    out = np.concatenate([weighted_normals, cs[tree.stop[n:]] - cs[tree.start[n:]]])
+    norm = np.linalg.norm(out, axis=1, keepdims=True)
+    return out / np.where(norm > 0, norm, 1.0)
+
+
 def assemble_prepared(scene, plan: ScenePlan, samples, tree, shading: ShadingPoints, pairs: PairLists | None,
                       geometry=None, mirror: bool = True) -> Prepared:
     """The :class:`Prepared` state from pass 1 (``samples``, ``tree``), the shaded points and their pair lists
@@ -169,8 +188,9 @@ def assemble_prepared(scene, plan: ScenePlan, samples, tree, shading: ShadingPoi
 
     order = tree.order
     pairs = pairs or PairLists(None, None, None, None, near_radius(samples), np.zeros(0, int), 0)
-    mus, tables, exit_model, tangent = (1.0,), None, "fresnel", None
+    mus, tables, exit_model, tangent, ent_normal = (1.0,), None, "fresnel", None, None
     if plan.bssrdf != "dipole":
+        ent_normal = jnp.asarray(entity_normals(samples.normals[order] * samples.areas[order, None], tree))
         medium = scene.material.medium
         mus, tables = white_tables(0.0 if medium.g is None else float(medium.g), float(medium.eta),
                                    oblique=plan.bssrdf == "white-oblique")
@@ -199,6 +219,7 @@ def assemble_prepared(scene, plan: ScenePlan, samples, tree, shading: ShadingPoi
         mirror=reflect,
         bssrdf_tables=tables,
         light_tangent=tangent,
+        ent_normal=ent_normal,
         bssrdf=plan.bssrdf,
         bssrdf_mus=tuple(mus),
         bssrdf_exit=exit_model,
