@@ -413,7 +413,8 @@ def exitance_direct(medium: Medium, query_pos, sample_pos, sample_flux, sample_a
         delta = (q[:, None, :] - sample_pos[None, :, :]).reshape(-1, 3)  # (block * N, 3)
         flux = jnp.broadcast_to(sample_flux[None], (q.shape[0],) + sample_flux.shape)
         area = jnp.broadcast_to(sample_area[None], (q.shape[0], n_s)).reshape(-1)
-        pair_normals = None if n is None else (jnp.repeat(n, n_s, axis=0), jnp.tile(normals[1], (q.shape[0], 1)))
+        pair_normals = None if n is None else (jnp.repeat(n, n_s, axis=0),
+                                               jnp.tile(normals[1][:n_s], (q.shape[0], 1)))
         point, w_flux, w_area = kernel.near_terms(delta, flux.reshape((-1,) + sample_flux.shape[1:]), area, rho0,
                                                   pair_normals)
 
