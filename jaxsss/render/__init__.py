@@ -17,7 +17,8 @@ the material is a JAX function of arrays, so ``prepared.image(medium)`` is diffe
   gradients (Keng et al. 2006): :func:`prepare_cached`, :func:`explain_cached` (the plan with the cache ratio),
   :data:`GRADIENTS`.
 - Shared pieces: :mod:`jaxsss.render.shading` (shaded points, the constant image), :mod:`jaxsss.render.pairs`
-  (interaction lists in blocks), :func:`build_octree`, :func:`build_interactions`, :mod:`jaxsss.render.radiance`.
+  (interaction lists in blocks), :func:`build_octree`, :func:`build_interactions`, :mod:`jaxsss.render.radiance`;
+  the profile kernels :mod:`jaxsss.render.bssrdf` and their curvature ratio :mod:`jaxsss.render.curvature`.
 """
 
 from jaxsss.render.cache import (

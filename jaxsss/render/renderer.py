@@ -93,7 +93,7 @@ class Prepared(ReflectingPoints):
 
     @property
     def normals(self):
-        """``(query normals, entity normals)`` for the curvature of the pairs, or None (:mod:`jaxsss.render.curvature`)."""
+        """``(query normals, entity normals)`` for the pairs' curvature, or None (:mod:`jaxsss.render.curvature`)."""
         return None if self.ent_normal is None else (self.query_normal, self.ent_normal)
 
     def exitance(self, medium: Medium, blocks: slice | None = None):
