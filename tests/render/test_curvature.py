@@ -19,36 +19,77 @@ def _A(eta):
     return np.asarray(Medium(SKIN1_A, SKIN1_S, eta=eta).A)
 
 
-def _kelvin_fluence(rho, cos_t, a, z_r, z_b, s):
-    """Fluence (up to a constant) of the real source and its Kelvin image at radius ``rho``, angle ``cos_t``."""
+def _image_fluence(rho, cos_t, a, z_r, z_b, s):
+    """Fluence (up to a constant) of the real source and its image at Kelvin's point at radius ``rho``, angle
+    ``cos_t``, the image's strength matched on the extrapolated sphere at that angle (the direct, unstable form)."""
     b = a - z_r
     a_e = a + z_b
     bi = a_e**2 / b
-    d1 = np.sqrt(rho**2 + b**2 - 2 * rho * b * cos_t)
-    d2 = np.sqrt(rho**2 + bi**2 - 2 * rho * bi * cos_t)
-    return np.exp(-s * d1) / d1 - (a_e / b) * np.exp(-s * d2) / d2
+
+    def dist(r, c):
+        return np.sqrt(r**2 + c**2 - 2 * r * c * cos_t)
+
+    q = (dist(a_e, bi) / dist(a_e, b)) * np.exp(-s * (dist(a_e, b) - dist(a_e, bi)))
+    return np.exp(-s * dist(rho, b)) / dist(rho, b) - q * np.exp(-s * dist(rho, bi)) / dist(rho, bi)
+
+
+def _shell_ratio(sa, ss, A, a):
+    """Exact diffusion: total exitance of a uniformly lit sphere of radius ``a`` (a shell of sources ``z_r`` deep,
+    zero fluence at ``a + z_b``) over the half-space's (Jensen et al. 2001's total diffuse reflectance)."""
+    st = sa + ss
+    D, s, z_r, z_b, ap = 1 / (3 * st), np.sqrt(3 * sa * st), 1 / st, 2 * A / (3 * st), ss / st
+    b, a_e = a - z_r, a + z_b
+    f1, f1p = np.sinh(s * b) / b, (s * np.cosh(s * b) * b - np.sinh(s * b)) / b**2
+    f2b = np.sinh(s * (a_e - b)) / b
+    f2pb = (-s * np.cosh(s * (a_e - b)) * b - np.sinh(s * (a_e - b))) / b**2
+    f2pa = (-s * np.cosh(s * (a_e - a)) * a - np.sinh(s * (a_e - a))) / a**2
+    amp = ap * a**2 / b**2 / (D * (f2b * f1p / f1 - f2pb))
+    x = np.sqrt(3 * (1 - ap))
+    return -D * amp * f2pa / (ap / 2 * (1 + np.exp(-4 / 3 * A * x)) * np.exp(-x))
 
 
 def test_reference_values_skin1_on_the_20mm_sphere():
-    """Hand-checked against the direct (unstable) form a^2 + c^2 - 2 a c cos t (docs/path_tracer.md, "Curvature")."""
+    """Against the direct (unstable) form ``a^2 + c^2 - 2 a c cos t`` of the same sources (docs/path_tracer.md,
+    "Curvature")."""
     r = curvature_ratio(np.array([1.0, 4.0])[:, None], 1 / 20, SKIN1_A, SKIN1_S, _A(1.4))
-    np.testing.assert_allclose(r, [[1.0499, 1.0662, 1.0831], [1.2190, 1.3130, 1.4008]], atol=2e-4)
+    np.testing.assert_allclose(r, [[1.0571, 1.0709, 1.0866], [1.3028, 1.4281, 1.5558]], atol=2e-4)
     r1 = curvature_ratio(4.0, 1 / 20, SKIN1_A, SKIN1_S, _A(1.0))
-    np.testing.assert_allclose(r1, [1.0713, 1.0677, 1.0767], atol=2e-4)
+    np.testing.assert_allclose(r1, [1.1357, 1.1819, 1.2205], atol=2e-4)
 
 
-def test_the_image_cancels_the_fluence_on_the_extrapolated_sphere_without_absorption():
-    """Kelvin's image is exact for the Laplace equation (sigma_a = 0): zero fluence on the sphere a + z_b."""
+@pytest.mark.parametrize("eta, a", [(1.0, 20.0), (1.4, 20.0), (1.4, 80.0), (1.0, 80.0)])
+def test_uniformly_lit_sphere_matches_the_exact_diffusion_solution(eta, a):
+    """Reference: the exact diffusion solution of a uniformly lit sphere (a radially symmetric shell source). The
+    per-pair ratio times the planar dipole, integrated over the sphere, is within 2.5% of it (the image is exact only
+    at the pair's own angle)."""
+    from jaxsss.profiles.dipole import dipole_profile
+
+    medium = Medium(SKIN1_A, SKIN1_S, eta=eta)
+    theta = np.linspace(1e-6, np.pi, 20001)[:, None]
+    chord = 2 * a * np.sin(theta / 2)
+    # The surface is uniformly lit: sum over sources = integral over the sphere around one point.
+    plane = np.asarray(dipole_profile(chord, medium))
+    curved = plane * np.asarray(curvature_ratio(chord, 1 / a, SKIN1_A, SKIN1_S, medium.A))
+    w = 2 * np.pi * a**2 * np.sin(theta)
+    ours = np.trapezoid(curved * w, theta[:, 0], axis=0) / np.trapezoid(plane * w, theta[:, 0], axis=0)
+    exact = _shell_ratio(SKIN1_A, SKIN1_S, np.asarray(medium.A), a)
+    np.testing.assert_allclose(ours, exact, rtol=0.025)
+    assert np.all(ours > 1.0)
+
+
+def test_the_image_cancels_the_fluence_on_the_extrapolated_sphere():
+    """The image's strength is matched so that the fluence vanishes on the extrapolated sphere at the pair's angle
+    (for any absorption; Kelvin's -a_e / b at every angle without absorption)."""
     a, z_r, z_b = 20.0, 1.0, 0.7
     cos_t = np.cos(np.linspace(0.0, np.pi, 50))
-    phi = _kelvin_fluence(a + z_b, cos_t, a, z_r, z_b, 0.0)
-    scale = 1.0 / z_r
-    assert np.max(np.abs(phi)) < 1e-12 * scale
-    # ... and the stable form used by the kernel is the same exitance as the radial derivative of that fluence.
+    for s in (0.0, 0.3):
+        phi = _image_fluence(a + z_b, cos_t, a, z_r, z_b, s)
+        assert np.max(np.abs(phi)) < 1e-12 / z_r
+    # ... and the stable form used by the kernel is the radial derivative of that fluence at the surface.
     s, d = 0.3, np.array([0.5, 3.0, 12.0])
     cos_d = 1 - 0.5 * (d / a) ** 2
     h = 1e-6
-    flux = -(_kelvin_fluence(a + h, cos_d, a, z_r, z_b, s) - _kelvin_fluence(a - h, cos_d, a, z_r, z_b, s)) / (2 * h)
+    flux = -(_image_fluence(a + h, cos_d, a, z_r, z_b, s) - _image_fluence(a - h, cos_d, a, z_r, z_b, s)) / (2 * h)
     ref = np.exp(-s * np.sqrt(z_r**2 + d**2))
     np.testing.assert_allclose(np.asarray(_sphere_exitance(d, 1 / a, z_r, z_b, s)) * ref, flux, rtol=1e-6)
 
@@ -59,8 +100,8 @@ def test_planar_limit_and_near_the_source():
     # A gentle curvature (a = 1 m) is nearly the plane, and the plane is its limit.
     r3 = np.asarray(curvature_ratio(d, 1e-3, 0.1, 1.0, 2.0))
     r4 = np.asarray(curvature_ratio(d, 1e-4, 0.1, 1.0, 2.0))
-    assert np.all(np.abs(r3 - 1.0) < 1e-2)
     near = d <= 10.0  # about linear in kappa there
+    assert np.all(np.abs(r3[near] - 1.0) < 1e-2)
     assert np.max(np.abs(r4[near] - 1.0)) < 0.2 * np.max(np.abs(r3[near] - 1.0))
 
 
@@ -105,7 +146,7 @@ def test_stability_matrix_finite(sa, ss, A):
     z_r = 1 / (sa + ss)
     for kappa in (0.0, 1e-3 / z_r, 0.1 / z_r, 10.0):
         val = np.asarray(curvature_ratio(d, kappa, sa, ss, A))
-        assert np.all(np.isfinite(val)) and np.all(val > 0), (kappa, val)
+        assert np.all(np.isfinite(val)) and np.all(val >= 0), (kappa, val)
         g = jax.grad(lambda p: jnp.sum(curvature_ratio(d, kappa, p[0], p[1], A)))(jnp.array([sa, ss]))
         assert np.all(np.isfinite(np.asarray(g))), (kappa, g)
 
@@ -135,6 +176,6 @@ def test_a_convex_object_gets_brighter_and_a_flat_kernel_is_unchanged(sphere_pre
     flat_state = eqx.tree_at(lambda p: p.ent_normal, state, None)
     flat = np.asarray(flat_state.image(medium))
     ratio = curved.sum(axis=(0, 1)) / flat.sum(axis=(0, 1))
-    # The sums moved by the curvature measured against Mitsuba (0.966 / 0.991 / 1.008 -> 1.002 / 1.007 / 1.015).
+    # Against Mitsuba the sums moved from 0.966 / 0.991 / 1.008 to 1.021 / 1.026 / 1.024.
     assert np.all(ratio > 1.005) and np.all(ratio < 1.06), ratio
     assert ratio[0] > ratio[2]  # the most diffusive channel (R, longest l_d) gains most
