@@ -22,7 +22,9 @@ This package is installed with ``jaxsss`` and imports only its public API (``imp
   :func:`fit_mc_slab` fits a slab's profile file by replay Monte Carlo (``jaxsss fit --model mc --thickness``).
 
 The Rd -> alpha' inversion and the (Rd, l_d) reparameterisation are closed-form physics and live in
-:mod:`jaxsss.reflectance` and :mod:`jaxsss.reparam`. - :func:`fit_image`: sigma_a and sigma_s' per channel from a rendered image (:class:`ImageFit`).
+:mod:`jaxsss.reflectance` and :mod:`jaxsss.reparam`. - :func:`fit_image`: sigma_a and sigma_s' per channel from a rendered image (:class:`ImageFit`); a channel whose
+``l_d`` the views do not resolve (under :data:`RESOLVED_LD_PIXELS` pixels, :func:`pixel_footprint`) is reported as
+fixing ``Rd`` only.
 """
 
 import jaxsss  # noqa: F401  (float64 before anything else)
@@ -30,7 +32,8 @@ import jaxsss  # noqa: F401  (float64 before anything else)
 # The public names are imported on first use (PEP 562, as in jaxsss/__init__): `jaxsss fit PROFILE.csv` needs the
 # profile fits only, not the image, replay and Monte Carlo fits (~1 s of imports on this machine).
 _LAZY = {
-    "ImageFit": "fitting.image_fit", "fit_image": "fitting.image_fit",
+    "ImageFit": "fitting.image_fit", "fit_image": "fitting.image_fit", "pixel_footprint": "fitting.image_fit",
+    "RESOLVED_LD_PIXELS": "fitting.image_fit",
     "COLUMNS": "fitting.io", "ProfileData": "fitting.io", "ProfileFileError": "fitting.io",
     "load_profile_npy": "fitting.io", "read_profile": "fitting.io", "read_profile_csv": "fitting.io",
     "McoLayer": "fitting.mco", "McoRun": "fitting.mco", "read_mco": "fitting.mco",

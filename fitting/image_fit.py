@@ -19,8 +19,9 @@ residuals, and ``max(1, RSS / (m - p))`` with ``target_stderr`` (inflated when t
 target's noise, as a path-traced reference shows it: the model's own error then sets the uncertainty). ``(Rd, l_d)``
 and their errors follow by the delta method through :func:`jaxsss.to_rd_ld`. A channel is **identifiable** when
 both coefficients have relative standard errors at most :data:`REL_STDERR_LIMIT` and their correlation is at most
-:data:`fitting.CORRELATION_LIMIT`; otherwise the result's ``warnings`` say which parameter the views do not constrain
-and what they do constrain (usually ``Rd``).
+:data:`fitting.CORRELATION_LIMIT`, and the fitted ``l_d`` spans at least :data:`RESOLVED_LD_PIXELS` pixels on the
+object in the finest view (:func:`pixel_footprint`); otherwise the result's ``warnings`` say which parameter the views
+do not constrain and what they do constrain (usually ``Rd``).
 
 Fixed during the fit: ``eta`` and ``g`` (from the scene), everything geometric (sample positions, octree centroids,
 cache positions, photon walks), and the plan's shortcuts that depend on the material (cut-off radius, shared channel)
@@ -49,6 +50,12 @@ LD_CANDIDATES_MM = (0.3, 1.0, 3.0, 10.0)
 """The start grid: 16 (Rd, l_d) pairs per channel, each a full image evaluation on the fit's pixels."""
 REL_STDERR_LIMIT = 0.3
 """A coefficient whose relative standard error exceeds this is reported as not constrained by the views."""
+RESOLVED_LD_PIXELS = 2.0
+"""The fitted ``l_d`` must span at least this many pixels on the object (:func:`pixel_footprint`, the finest view)
+for ``sigma_a`` and ``sigma_s'`` to be reported apart: a blur narrower than two pixels is not resolved, and the split
+then follows the renderer's model error, which the pixel noise's standard errors do not cover. Measured on the
+Mitsuba skin1 references (docs/benchmarks.md, "fit_image from the Mitsuba skin1 image"): l_d of 4.6 pixels (red)
+came back within 2-4%, 1.7 pixels (green) 9-10% off, 0.9 pixels (blue) 30-46% off, each with standard errors of 1-4%."""
 
 
 class ImageFit(eqx.Module):
@@ -217,13 +224,33 @@ def _uncertainty(theta, residuals, args, n_res: int, absolute: bool):
     return se_log, corr, rd_ld_value, se_rd_ld
 
 
-def _identifiability(se_log, corr, rd, se_rd):
-    """Per channel: identifiable, and a warning line for each channel that is not."""
+def pixel_footprint(scene) -> float:
+    """Width of one pixel on the object, mm: ``2 d tan(fov / 2) / H`` at the distance ``d`` from the camera to the
+    centre of the translucent mesh's bounding box (``fov_deg`` is vertical, ``H`` the image height)."""
+    cam = scene.camera
+    d = float(np.linalg.norm(np.asarray(scene.mesh.bounding_box.centroid) - np.asarray(cam.position)))
+    return 2.0 * d * float(np.tan(np.radians(cam.fov_deg) / 2.0)) / float(cam.resolution[1])
+
+
+def _identifiability(se_log, corr, rd, se_rd, ld=None, footprint=None):
+    """Per channel: identifiable, and a warning line for each channel that is not. With the fitted ``ld`` (mm) and
+    the finest view's ``footprint`` (mm per pixel), a blur under :data:`RESOLVED_LD_PIXELS` pixels is not."""
     c = len(corr)
     rel_a, rel_s = se_log[:c], se_log[c:]  # delta method: se(sigma) / sigma = se(log sigma)
     ok = (rel_a <= REL_STDERR_LIMIT) & (rel_s <= REL_STDERR_LIMIT) & (np.abs(corr) <= CORRELATION_LIMIT)
     warnings = []
+    if ld is not None and footprint is not None:
+        pixels = np.asarray(ld) / footprint
+        blurred = ok & ~(pixels >= RESOLVED_LD_PIXELS)  # also NaN / inf l_d
+        for k in np.flatnonzero(blurred):
+            warnings.append(f"channel {k}: l_d = {float(ld[k]):.3g} mm spans {float(pixels[k]):.1f} pixels on the "
+                            f"object (< {RESOLVED_LD_PIXELS:g}): the views do not resolve the blur, so sigma_a and "
+                            f"sigma_s' are not constrained apart whatever their standard errors; Rd = {rd[k]:.4g} +- "
+                            f"{se_rd[k]:.2g} is what they fix; view the object closer or at a higher resolution")
+        ok = ok & ~blurred
     for k in np.flatnonzero(~ok):
+        if any(w.startswith(f"channel {k}:") for w in warnings):
+            continue
         loose = [name for name, rel in (("sigma_a", rel_a[k]), ("sigma_s'", rel_s[k])) if rel > REL_STDERR_LIMIT]
         why = (f"{' and '.join(loose)} not constrained (relative standard errors {rel_a[k]:.0%} / {rel_s[k]:.0%})"
                if loose else f"sigma_a and sigma_s' correlated ({corr[k]:+.4f})")
@@ -319,7 +346,8 @@ def fit_image(scene, target_image, *, method: str = "hierarchical", max_pixels: 
                                                  target_stderr is not None)
     seconds["stderr"] = time.perf_counter() - t0
     c = n_channels
-    ok, warnings = _identifiability(se_log, corr, rd_ld[:c], se_rd_ld[:c])
+    ok, warnings = _identifiability(se_log, corr, rd_ld[:c], se_rd_ld[:c], rd_ld[c:],
+                                    min(pixel_footprint(sc) for sc in scenes))
     sa, ss = jnp.exp(theta[:c]), jnp.exp(theta[c:])
     return ImageFit(sa, ss, jnp.asarray(sa0), jnp.asarray(ss0), sol.result, sol.stats["num_steps"], rms,
                     sa * se_log[:c], ss * se_log[c:], jnp.asarray(rd_ld[:c]), jnp.asarray(se_rd_ld[:c]),
