@@ -528,15 +528,38 @@ def valley_starts(thetas, results, steps, stationary, mask, r, y, se, eta, d, cf
     return side.reshape(2, t.shape[0], -1)[jnp.arange(2), k]
 
 
+_UNFILLED = int(optx.RESULTS.nonlinear_max_steps_reached._value)  # a row not solved yet: never the chosen one
+
+
 def with_valley(sol, mask, r, y, se, eta, d, cfg: Config):
     """``sol`` (the starts' solutions) extended by :data:`VALLEY_ROUNDS` rounds of two valley starts' solutions
-    (:func:`valley_starts`, each round from the best solution so far)."""
-    sol = tuple(sol)
-    for _ in range(VALLEY_ROUNDS):
-        v0 = valley_starts(*sol, mask, r, y, se, eta, d, cfg)
-        extra = solve_starts(v0, mask, r, y, se, eta, d, cfg)
-        sol = jax.tree_util.tree_map(lambda a, b: jnp.concatenate([a, b]), sol, tuple(extra))
-    return sol
+    (:func:`valley_starts`, each round from the best solution so far).
+
+    The rounds are one ``lax.fori_loop`` over rows preallocated for them (a row not yet solved reads as unconverged,
+    so no round chooses it), not a Python loop: the fused fit's graph holds one valley scan and one solve instead of
+    one per round (the model is evaluated inside each, and compilation time grows with the copies)."""
+    S = jax.tree_util.tree_leaves(sol[0])[0].shape[0]
+    extra = 2 * VALLEY_ROUNDS
+
+    def grow(a, fill):
+        return jnp.concatenate([a, jnp.full((extra,) + a.shape[1:], fill, a.dtype)])
+
+    thetas, results, steps, stationary = sol
+    rows = (grow(thetas, 0.0), grow(results._value, _UNFILLED), grow(steps, 0), grow(stationary, False))
+
+    def one_round(i, rows):
+        th, res, st, stat = rows
+        v0 = valley_starts(th, optx.RESULTS.successful.__class__(res, optx.RESULTS), st, stat, mask, r, y, se, eta,
+                           d, cfg)
+        new = solve_starts(v0, mask, r, y, se, eta, d, cfg)
+        at = S + 2 * i
+        return (jax.lax.dynamic_update_slice_in_dim(th, new[0], at, 0),
+                jax.lax.dynamic_update_slice_in_dim(res, new[1]._value.astype(res.dtype), at, 0),
+                jax.lax.dynamic_update_slice_in_dim(st, new[2].astype(st.dtype), at, 0),
+                jax.lax.dynamic_update_slice_in_dim(stat, new[3], at, 0))
+
+    th, res, st, stat = jax.lax.fori_loop(0, VALLEY_ROUNDS, one_round, rows)
+    return th, optx.RESULTS.successful.__class__(res, optx.RESULTS), st, stat
 
 
 # --- 4. Choice among the starts, covariance, suspect checks --------------------------------------------------------
