@@ -19,7 +19,7 @@ run: $(STAMP)
 	$(VENV)/bin/jaxsss run --out-dir out
 
 test: $(STAMP)
-	$(PY) -m pytest -n 2 --dist loadscope -q tests
+	$(PY) -m pytest -n 2 --dist loadscope --no-loadscope-reorder -q tests
 
 bench: $(STAMP)
 	$(PY) -m benchmarks.run_all

@@ -12,6 +12,7 @@ from jaxsss.data import list_materials
 
 PNG_SIGNATURE = b"\x89PNG\r\n\x1a\n"
 PHOTONS = 20_000
+SIZE = 32  # pixels a side (the default is 512): the job's fit_image then solves on ~150 pixels
 
 
 @pytest.fixture(scope="module")
@@ -23,8 +24,8 @@ def job(tmp_path_factory):
     out_dir = tmp_path_factory.mktemp("run") / "nested" / "out"
     stdout, stderr = io.StringIO(), io.StringIO()
     with contextlib.redirect_stdout(stdout), contextlib.redirect_stderr(stderr):
-        code = main(["run", "--out-dir", str(out_dir), "--photons", str(PHOTONS), "--resolution", "48", "48",
-                     "--max-samples", "6000"])
+        code = main(["run", "--out-dir", str(out_dir), "--photons", str(PHOTONS), "--resolution", str(SIZE), str(SIZE),
+                     "--max-samples", "3000"])
     return code, stdout.getvalue(), stderr.getvalue(), out_dir
 
 
@@ -76,9 +77,9 @@ def test_job_renders_the_teapot_and_recovers_the_marble(job):
     _, out, _, out_dir = job
     assert (out_dir / "marble_teapot.png").read_bytes()[:8] == PNG_SIGNATURE
     image = np.load(out_dir / "marble_teapot.npy")
-    assert image.shape == (48, 48, 3) and np.isfinite(image).all() and image.max() > 0
+    assert image.shape == (SIZE, SIZE, 3) and np.isfinite(image).all() and image.max() > 0
     report = json.loads((out_dir / "marble_teapot.json").read_text())
-    assert report["resolution"] == [48, 48] and report["plan"]["items"]
+    assert report["resolution"] == [SIZE, SIZE] and report["plan"]["items"]
     # The recovery table: six rows (sigma_a and sigma_s' in R, G, B), each within 1% at this tiny size.
     lines = out.splitlines()
     start = next(i for i, line in enumerate(lines) if line.startswith("param"))
