@@ -19,8 +19,9 @@ def _float64():
 
 
 # Modules that take longest on a cold start (mostly compilation), heaviest first: `make test` runs the suite on two
-# xdist workers with `--dist loadscope` (a module's tests and its module-scoped fixtures stay on one worker), and a
-# heavy module scheduled last leaves the other worker idle. Measured cold durations in seconds (2026-11-23, 2 cores).
+# xdist workers with `--dist loadscope --no-loadscope-reorder` (a module's tests and its module-scoped fixtures stay on
+# one worker; xdist's own reorder, by test count, put the notebooks last), and a heavy module scheduled last leaves the
+# other worker idle. Measured cold durations in seconds (2026-11-23, 2 cores).
 HEAVY_FIRST = (
     "tests/test_notebooks.py",  # ~190: render_and_fit, fit_measured_materials, reparameterisation
     "tests/cli/test_run.py",  # ~120: the `jaxsss run` job (render, fit_image, Monte Carlo, mc fit)
