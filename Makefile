@@ -18,8 +18,10 @@ $(STAMP): $(PY) pyproject.toml
 run: $(STAMP)
 	$(VENV)/bin/jaxsss run --out-dir out
 
+# A crashed worker ends the run (--max-worker-restart=0): a replacement would rerun the crashed module's tests, and a
+# CI run that lost a worker to an abort hung until its time limit. pytest-timeout (pyproject) bounds any one test.
 test: $(STAMP)
-	$(PY) -m pytest -n 2 --dist loadscope --no-loadscope-reorder -q tests
+	$(PY) -m pytest -n 2 --dist loadscope --no-loadscope-reorder --max-worker-restart=0 -q tests
 
 bench: $(STAMP)
 	$(PY) -m benchmarks.run_all

@@ -8,17 +8,27 @@ float32 arrays explicitly; the documented float32 error bounds are in ``docs/arc
 Compilation cache: a fit, a Monte Carlo run or a render compiles its XLA programs once per process, which costs
 seconds; JAX's persistent cache stores them on disk so that the next process loads them instead. It is on by
 default in ``$XDG_CACHE_HOME/jaxsss/jax`` (``~/.cache/jaxsss/jax``). The environment variable
-``JAXSSS_COMPILATION_CACHE`` chooses another directory, or turns the cache off with ``0``, ``off``, ``false`` or
+``JAXSSS_COMPILATION_CACHE`` chooses another root directory, or turns the cache off with ``0``, ``off``, ``false`` or
 ``no``. A cache directory that the user has already given JAX (``JAX_COMPILATION_CACHE_DIR`` or
 ``jax.config.update("jax_compilation_cache_dir", ...)`` before importing jaxsss) is left as it is.
+
+Compiled CPU programs are machine code for the CPU that compiled them, and JAX's cache key does not name that CPU
+(jaxlib 0.10: the platform is "cpu" and the topology fingerprint ignores instruction-set extensions). A home
+directory shared by machines with different CPUs (a cluster's network home, a CI runner pool with a persistent
+cache) would hand one machine's AVX-512 code to another: the loader rejects it at best and aborts the process at
+worst (a CI run of this project died in ``backend.deserialize_executable`` that way). So the cache lives in a
+subdirectory per CPU, :func:`host_key`: the architecture and a digest of the model name and instruction-set flags.
 """
 
 from __future__ import annotations
 
+import hashlib
 import importlib.abc
 import importlib.util
 import os
+import platform
 import sys
+from functools import lru_cache
 from pathlib import Path
 
 CACHE_ENV = "JAXSSS_COMPILATION_CACHE"
@@ -29,13 +39,39 @@ MIN_COMPILE_SECONDS = 0.05
 """Programs that compile faster than this are not written to the cache (loading them would not pay)."""
 
 
+_CPU_FIELDS = ("vendor_id", "model name", "flags", "cpu family", "model", "Features", "CPU implementer",
+               "CPU architecture", "CPU variant", "CPU part", "isa", "cpu")
+"""/proc/cpuinfo fields (x86, arm64, riscv, power) that name the CPU and its instruction-set extensions."""
+
+
+@lru_cache(maxsize=None)
+def host_key(cpuinfo: str | None = None) -> str:
+    """This machine's CPU as a directory name: ``<architecture>-<12 hex digits>``, the digits a SHA-256 of the first
+    processor's model and instruction-set fields in ``/proc/cpuinfo`` (``platform.processor()`` where there is no
+    such file). Two machines share compiled programs only when the key matches. ``cpuinfo``: the file's text, for
+    tests."""
+    if cpuinfo is None:
+        try:
+            cpuinfo = Path("/proc/cpuinfo").read_text(errors="replace")
+        except OSError:
+            cpuinfo = ""
+    first = cpuinfo.strip().split("\n\n")[0]  # the first processor's block
+    fields = sorted(line.strip() for line in first.splitlines() if line.split(":")[0].strip() in _CPU_FIELDS)
+    text = "\n".join(fields) if fields else f"{platform.processor()}\n{platform.platform()}"
+    return f"{platform.machine() or 'unknown'}-{hashlib.sha256(text.encode()).hexdigest()[:12]}"
+
+
 def compilation_cache_dir() -> Path | None:
-    """The directory jaxsss asks JAX to cache compiled programs in, or None when the cache is turned off."""
+    """The directory jaxsss asks JAX to cache compiled programs in, ``<root>/<host_key()>``, or None when the cache is
+    turned off. The root is ``$JAXSSS_COMPILATION_CACHE`` when set, else ``$XDG_CACHE_HOME/jaxsss/jax``."""
     value = os.environ.get(CACHE_ENV)
     if value is not None:
-        return None if value.strip().lower() in _OFF else Path(value).expanduser()
-    base = os.environ.get("XDG_CACHE_HOME") or Path.home() / ".cache"
-    return Path(base) / "jaxsss" / "jax"
+        if value.strip().lower() in _OFF:
+            return None
+        root = Path(value).expanduser()
+    else:
+        root = Path(os.environ.get("XDG_CACHE_HOME") or Path.home() / ".cache") / "jaxsss" / "jax"
+    return root / host_key()
 
 
 def enable_compilation_cache(path: str | os.PathLike | None = None) -> Path | None:

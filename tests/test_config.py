@@ -8,7 +8,7 @@ from pathlib import Path
 import jax
 
 import jaxsss
-from jaxsss._config import CACHE_ENV
+from jaxsss._config import CACHE_ENV, host_key
 
 
 def test_float64_is_default():
@@ -17,13 +17,40 @@ def test_float64_is_default():
 
 def test_cache_dir_follows_environment(monkeypatch, tmp_path):
     monkeypatch.setenv(CACHE_ENV, str(tmp_path / "c"))
-    assert jaxsss.compilation_cache_dir() == tmp_path / "c"
+    assert jaxsss.compilation_cache_dir() == tmp_path / "c" / host_key()
     for off in ("0", "off", "False", "no"):
         monkeypatch.setenv(CACHE_ENV, off)
         assert jaxsss.compilation_cache_dir() is None
     monkeypatch.delenv(CACHE_ENV)
     monkeypatch.setenv("XDG_CACHE_HOME", str(tmp_path))
-    assert jaxsss.compilation_cache_dir() == tmp_path / "jaxsss" / "jax"
+    assert jaxsss.compilation_cache_dir() == tmp_path / "jaxsss" / "jax" / host_key()
+
+
+_X86 = """processor\t: 0
+vendor_id\t: AuthenticAMD
+cpu family\t: 25
+model\t\t: 1
+model name\t: AMD EPYC 7B13
+cpu MHz\t\t: {mhz}
+flags\t\t: fpu sse2 avx avx2{extra}
+bogomips\t: 4900.00
+
+processor\t: 1
+vendor_id\t: AuthenticAMD
+flags\t\t: fpu sse2 avx avx2 avx512f
+"""
+
+
+def test_host_key_names_the_cpu_and_its_instruction_sets():
+    """Compiled CPU programs are not shared between CPUs with different instruction sets (a CI pool or a cluster home
+    with one cache): the key changes with the flags and the model, not with the clock or other processors' lines."""
+    base = host_key.__wrapped__(_X86.format(mhz="2450.0", extra=""))
+    assert base == host_key.__wrapped__(_X86.format(mhz="3100.5", extra=""))  # the clock does not matter
+    assert base != host_key.__wrapped__(_X86.format(mhz="2450.0", extra=" avx512f"))
+    assert base != host_key.__wrapped__(_X86.format(mhz="2450.0", extra="").replace("7B13", "9654"))
+    arch, digest = base.rsplit("-", 1)
+    assert arch and len(digest) == 12 and int(digest, 16) >= 0
+    assert host_key.__wrapped__("") == host_key.__wrapped__("")  # no /proc/cpuinfo: the platform's description
 
 
 _PROGRAM = """
@@ -43,7 +70,7 @@ def test_compiled_programs_persist_across_processes(tmp_path):
     cache = tmp_path / "cache"
     env = {**os.environ, CACHE_ENV: str(cache), "JAX_PLATFORMS": "cpu"}
     env.pop("JAX_COMPILATION_CACHE_DIR", None)
-    assert _run(env) == str(cache)
+    assert _run(env) == str(cache / host_key())
 
     def program_entries():  # the jitted lambda's cache files and their modification times
         return {p.name: p.stat().st_mtime_ns for p in Path(cache).rglob("jit__lambda*") if p.is_file()}
