@@ -6,22 +6,20 @@ float32 arrays explicitly; the documented float32 error bounds are in ``docs/arc
 ``tests/test_stability.py``.
 
 Compilation cache: a fit, a Monte Carlo run or a render compiles its XLA programs once per process, which costs
-seconds; JAX's persistent cache can store them on disk so that the next process loads them instead. It is **off by
-default** and turned on with the environment variable ``JAXSSS_COMPILATION_CACHE``: ``on`` (or ``1``, ``true``,
-``yes``) for ``$XDG_CACHE_HOME/jaxsss/jax`` (``~/.cache/jaxsss/jax``), or a directory. ``0``, ``off``, ``false``,
-``no`` or unset leave it off. A cache directory that the user has already given JAX (``JAX_COMPILATION_CACHE_DIR`` or
+seconds; JAX's persistent cache stores them on disk so that the next process loads them instead. It is on by
+default in ``$XDG_CACHE_HOME/jaxsss/jax`` (``~/.cache/jaxsss/jax``). The environment variable
+``JAXSSS_COMPILATION_CACHE`` chooses another root directory, or turns the cache off with ``0``, ``off``, ``false`` or
+``no``. A cache directory that the user has already given JAX (``JAX_COMPILATION_CACHE_DIR`` or
 ``jax.config.update("jax_compilation_cache_dir", ...)`` before importing jaxsss) is left as it is.
-
-Why off: with jaxlib 0.10.2 on CPU, the cache's serialisation of compiled executables crashed long-lived processes
-of this project's test suite twice in two runs (a segmentation fault in ``executable.serialize()`` writing an
-entry, on a fresh cache; an abort in ``backend.deserialize_executable`` reading one, in CI), in different programs
-and not reproducibly in isolation. A speed-up that can kill a user's notebook must be asked for.
 
 Compiled CPU programs are machine code for the CPU that compiled them, and JAX's cache key does not name that CPU
 (jaxlib 0.10: the platform is "cpu" and the topology fingerprint ignores instruction-set extensions). A home
 directory shared by machines with different CPUs (a cluster's network home, a CI runner pool with a persistent
-cache) would hand one machine's AVX-512 code to another. So the cache lives in a subdirectory per CPU,
-:func:`host_key`: the architecture and a digest of the model name and instruction-set flags.
+cache) would hand one machine's AVX-512 code to another: the loader rejects it at best, and the code faults at worst. So
+the cache lives in a subdirectory per CPU, :func:`host_key`: the architecture and a digest of the model name and
+instruction-set flags. (A CI run that died in ``backend.deserialize_executable`` first suggested the cache; the cause
+was the process's memory mappings, docs/architecture.md "Long processes and memory mappings": the same worker died
+in serialisation and in plain compilation with the cache off.)
 """
 
 from __future__ import annotations
@@ -36,10 +34,9 @@ from functools import lru_cache
 from pathlib import Path
 
 CACHE_ENV = "JAXSSS_COMPILATION_CACHE"
-"""Environment variable: ``on`` or a directory turns the compilation cache on; unset or ``off`` leaves it off."""
+"""Environment variable: a directory for the compilation cache, or 0/off/false/no to disable it."""
 
 _OFF = {"0", "off", "false", "no", "none", ""}
-_ON = {"1", "on", "true", "yes"}
 MIN_COMPILE_SECONDS = 0.05
 """Programs that compile faster than this are not written to the cache (loading them would not pay)."""
 
@@ -68,22 +65,21 @@ def host_key(cpuinfo: str | None = None) -> str:
 
 def compilation_cache_dir() -> Path | None:
     """The directory jaxsss asks JAX to cache compiled programs in, ``<root>/<host_key()>``, or None when the cache is
-    off (the default). The root is ``$JAXSSS_COMPILATION_CACHE`` when it names a directory, and
-    ``$XDG_CACHE_HOME/jaxsss/jax`` when it is ``on``."""
-    value = os.environ.get(CACHE_ENV, "").strip()
-    if value.lower() in _OFF:
-        return None
-    if value.lower() in _ON:
-        root = Path(os.environ.get("XDG_CACHE_HOME") or Path.home() / ".cache") / "jaxsss" / "jax"
-    else:
+    turned off. The root is ``$JAXSSS_COMPILATION_CACHE`` when set, else ``$XDG_CACHE_HOME/jaxsss/jax``."""
+    value = os.environ.get(CACHE_ENV)
+    if value is not None:
+        if value.strip().lower() in _OFF:
+            return None
         root = Path(value).expanduser()
+    else:
+        root = Path(os.environ.get("XDG_CACHE_HOME") or Path.home() / ".cache") / "jaxsss" / "jax"
     return root / host_key()
 
 
 def enable_compilation_cache(path: str | os.PathLike | None = None) -> Path | None:
     """Turn on JAX's persistent compilation cache in ``path`` (default :func:`compilation_cache_dir`).
 
-    Returns the directory in use, or None when the cache is off (the default; ``JAXSSS_COMPILATION_CACHE``) or the directory
+    Returns the directory in use, or None when the cache is off (``JAXSSS_COMPILATION_CACHE=0``) or the directory
     cannot be created (a read-only home, say: the cache is an optimisation, never a reason to fail).
     """
     import jax
