@@ -109,3 +109,41 @@ def test_bad_views_are_named(two_views):
         fit_image([scenes[0], other], [targets[0], targets[0]])
     with pytest.raises(ValueError, match="target_stderr"):
         fit_image(scenes[0], targets[0], target_stderr=np.zeros_like(targets[0]))
+
+
+def test_per_channel_jacobian_equals_the_full_one(two_views):
+    """The solve's Jacobian comes from two tangent passes (``_channel_residuals``): it must equal ``jax.jacfwd`` of
+    the plain residuals, entry for entry, on a three-channel material (every method's fit checks it again at its
+    solution: ``_channel_coupling``, asserted in test_renderer, test_cache and test_methods)."""
+    import jax
+    import jax.numpy as jnp
+
+    from fitting.image_fit import _channel_residuals, _stacked_residuals
+    from jaxsss.render import prepare_method
+
+    scene = _view({"type": "point", "position": [-20.0, 5.0, 10.0], "intensity": 300.0}, resolution=8)
+    target = np.asarray(prepare(scene, cutoff=False, share_channels=False, bssrdf="dipole")[0].image(
+        scene.material.medium))
+    mask = target.sum(-1) > 0
+    prepared = prepare_method(scene, "hierarchical", pixel_mask=mask, fit=True, bssrdf="dipole").state
+    medium = scene.material.medium
+    views = ((prepared, jnp.asarray(target), jnp.ones_like(jnp.asarray(target)), jnp.asarray(mask)),)
+    args = (views, medium.eta, medium.g, medium.fresnel)
+    theta = jnp.log(jnp.array([0.05, 0.1, 0.2, 1.0, 1.5, 2.0]))
+    full = np.asarray(jax.jacfwd(_stacked_residuals)(theta, args))
+    packed = np.asarray(jax.jacfwd(_channel_residuals)(theta, args))
+    assert np.abs(full[:, :3]).max() > 0 and np.abs(full[:, 3:]).max() > 0
+    np.testing.assert_allclose(packed, full, rtol=1e-12, atol=1e-14 * np.abs(full).max())
+    assert fitting.image_fit._channel_coupling(full) < 1e-12
+
+
+def test_channel_coupling_is_measured():
+    from fitting.image_fit import _channel_coupling
+
+    own = np.zeros((6, 6))  # rows: channels 0, 1, 2, 0, 1, 2; columns: log sigma_a 0-2, log sigma_s' 0-2
+    for i in range(6):
+        own[i, i % 3], own[i, 3 + i % 3] = 2.0, -1.0
+    assert _channel_coupling(own) == 0.0
+    coupled = own.copy()
+    coupled[0, 1] = 0.5
+    assert _channel_coupling(coupled) == pytest.approx(0.25)
