@@ -351,10 +351,12 @@ def _linearise(theta, args):
 def _secant_jacobian(theta, args):
     """``(residuals, J)`` with ``J`` by central differences of step :data:`ROUGH_JACOBIAN_STEP` (rough models)."""
     h = ROUGH_JACOBIAN_STEP
-    e = h * jnp.eye(theta.shape[0], dtype=theta.dtype)
-    plus = jax.vmap(lambda d: residuals(theta + d, args))(e)
-    minus = jax.vmap(lambda d: residuals(theta - d, args))(e)
-    return residuals(theta, args), ((plus - minus) / (2.0 * h)).T
+    p = theta.shape[0]
+    e = h * jnp.eye(p, dtype=theta.dtype)
+    # The centre and the 2 p displaced points in one batched evaluation: one copy of the model in the compiled fit
+    # (each copy adds ~1 s of compilation for the white-MC family; three separate calls here made 6 of its 14).
+    res = jax.vmap(lambda d: residuals(theta + d, args))(jnp.concatenate([jnp.zeros((1, p), theta.dtype), e, -e]))
+    return res[0], ((res[1:p + 1] - res[p + 1:]) / (2.0 * h)).T
 
 
 def _covariance_jacobian(theta, args):
