@@ -5,11 +5,11 @@ import gc
 import os
 from pathlib import Path
 
-# XLA:CPU's fusion emitters off for the suite (set before the first backend starts, so xdist workers and the notebooks'
-# kernels inherit it). The suite is mostly compilation, and these emitters cost about a quarter of it: the mc fit's
-# program compiles in 11.4 s without them against 15.9 s, `jaxsss run` takes 57 s against 75 s, and the cold suite
-# ran in 9m10s against 12m52s with this session's fit changes (docs/architecture.md, "Compilation in the test suite"). Code generation
-# only: the Monte Carlo engine's results were bit-identical, fits and renders equal to rounding.
+# XLA:CPU's fusion emitters off for the suite (set before the first backend starts, so xdist workers and the
+# notebooks' kernels inherit it). The suite is mostly compilation, and these emitters cost about a quarter of it: the
+# mc fit's program compiles in 11.4 s without them against 15.9 s, `jaxsss run` takes 57 s against 75 s, and the cold
+# suite ran in 9m10s against 12m52s (docs/architecture.md, "Compilation in the test suite"). Code generation only: the
+# Monte Carlo engine's results were bit-identical, fits and renders equal to rounding.
 FAST_COMPILE_FLAG = "--xla_cpu_use_fusion_emitters=false"
 if "xla_cpu_use_fusion_emitters" not in os.environ.get("XLA_FLAGS", ""):
     os.environ["XLA_FLAGS"] = f"{os.environ.get('XLA_FLAGS', '')} {FAST_COMPILE_FLAG}".strip()
