@@ -40,6 +40,7 @@ import numpy as np
 import optimistix as optx
 
 import jaxsss
+from jaxsss._config import compile_bound_options
 from fitting.result import CORRELATION_LIMIT
 from fitting.solvers import resolve_solver
 
@@ -376,8 +377,8 @@ def fit_image(scene, target_image, *, method: str = "hierarchical", max_pixels: 
     theta_shape = jnp.zeros(2 * n_channels)
     # Compile first (timed apart): the residuals (the start grid) and the solve.
     t0 = time.perf_counter()
-    residuals = _residuals.lower(theta_shape, args).compile()
-    compiled = _solve.lower(theta_shape, args, opt, max_steps).compile()
+    residuals = _residuals.lower(theta_shape, args).compile(compile_bound_options())
+    compiled = _solve.lower(theta_shape, args, opt, max_steps).compile(compile_bound_options())
     seconds["compile"] = time.perf_counter() - t0
 
     t0 = time.perf_counter()

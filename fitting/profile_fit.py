@@ -29,6 +29,7 @@ import jax.numpy as jnp
 import numpy as np
 
 import jaxsss
+from jaxsss._config import compile_bound_options
 from jaxsss.validate import trusted_traces
 from jaxsss.fresnel import resolve_fresnel_method
 from fitting import _kernel as K
@@ -179,12 +180,14 @@ _STAGES = {"fit": K.fit, "starts": K.starts, "solve": K.solve_starts, "valley": 
 
 
 @lru_cache(maxsize=64)
-def _compiled(stage: str, cfg: K.Config):
+def _compiled(stage: str, cfg: K.Config, options: bool = True):
     """The jitted, vmapped stage (``r`` shared, every other argument per problem). Sharding needs no code of its
     own: :func:`_run` places the problem axis of the inputs over a device mesh and jit's SPMD partitioner splits the
-    computation accordingly."""
+    computation accordingly. Compiled with :func:`jaxsss._config.compile_bound_options`; ``options=False`` for
+    :mod:`jax.export`, which refuses a jit that carries compiler options (the exported call carries them instead)."""
     fn = _STAGES[stage]
-    return jax.jit(lambda r, *per_problem: jax.vmap(lambda *a: fn(*_order(stage, r, a), cfg))(*per_problem))
+    return jax.jit(lambda r, *per_problem: jax.vmap(lambda *a: fn(*_order(stage, r, a), cfg))(*per_problem),
+                   compiler_options=compile_bound_options() if options else None)
 
 
 def _order(stage, r, a):
@@ -301,7 +304,7 @@ def _exported_fit(cfg, r, per_problem):
             except Exception:  # a damaged or foreign file: export again
                 exp = None
         if exp is None:
-            fn = _compiled("fit", cfg)
+            fn = _compiled("fit", cfg, False)
 
             def plain(r, *a):
                 out, *rest = fn(r, *a)
@@ -318,8 +321,8 @@ def _exported_fit(cfg, r, per_problem):
                 tmp.replace(path)
             except OSError:
                 pass
-        _EXPORTED[key] = exp
-    out, *rest = exp.call(r, *per_problem)
+        exp = _EXPORTED[key] = jax.jit(exp.call, compiler_options=compile_bound_options())
+    out, *rest = exp(r, *per_problem)
     out = {**out, "result": optx.RESULTS.successful.__class__(out["result"], optx.RESULTS)}
     return (out, *rest)
 
@@ -343,7 +346,7 @@ def _compiled_block(cfg: K.Config):
 
         return jax.vmap(one)(state, pidx)
 
-    return jax.jit(block)
+    return jax.jit(block, compiler_options=compile_bound_options())
 
 
 def _solve_slots(cfg, r, theta0, mask, y, se, eta, d):

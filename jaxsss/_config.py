@@ -41,6 +41,22 @@ MIN_COMPILE_SECONDS = 0.05
 """Programs that compile faster than this are not written to the cache (loading them would not pay)."""
 
 
+COMPILE_BOUND_OPTIONS = {"xla_cpu_use_fusion_emitters": False}
+"""XLA compiler options for the programs that compile for far longer than they run: the fits (a profile fit runs in
+milliseconds after a compilation of seconds). XLA:CPU's fusion emitters cost about a quarter of the compilation
+(measured 2026-11-27, 2 cores: the white-MC fit's program 11.4 s without them against 15.9 s) and gave no speed to
+these programs (1000 dipole fits: 0.18 s against 0.21 s). Not used for the Monte Carlo engine, which runs 36% slower
+without them (docs/architecture.md, "Compilation in the test suite")."""
+
+
+def compile_bound_options() -> dict | None:
+    """:data:`COMPILE_BOUND_OPTIONS` for ``jax.jit(..., compiler_options=...)`` on the CPU backend (they are XLA:CPU
+    options), else ``None``."""
+    import jax
+
+    return dict(COMPILE_BOUND_OPTIONS) if jax.default_backend() == "cpu" else None
+
+
 _CPU_FIELDS = ("vendor_id", "model name", "flags", "cpu family", "model", "Features", "CPU implementer",
                "CPU architecture", "CPU variant", "CPU part", "isa", "cpu")
 """/proc/cpuinfo fields (x86, arm64, riscv, power) that name the CPU and its instruction-set extensions."""
