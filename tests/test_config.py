@@ -6,6 +6,7 @@ import sys
 from pathlib import Path
 
 import jax
+import pytest
 
 import jaxsss
 from jaxsss._config import CACHE_ENV, host_key
@@ -89,3 +90,23 @@ def test_cache_can_be_turned_off(tmp_path):
     env.pop("JAX_COMPILATION_CACHE_DIR", None)
     assert _run(env) in ("None", "")
     assert not (tmp_path / "jaxsss").exists()
+
+
+def test_compile_bound_options_are_xla_options_that_change_nothing_but_compilation():
+    """The fits' compiler options (jaxsss._config.COMPILE_BOUND_OPTIONS) name real XLA options (XLA refuses an unknown
+    name: "No such compile option") and give the same numbers as the default code generation."""
+    import jax
+    import jax.numpy as jnp
+
+    from jaxsss._config import COMPILE_BOUND_OPTIONS, compile_bound_options
+
+    opts = compile_bound_options()
+    assert opts == COMPILE_BOUND_OPTIONS and opts is not COMPILE_BOUND_OPTIONS  # a copy: callers cannot alter it
+    x = jnp.linspace(0.1, 3.0, 257)
+
+    def f(x):
+        return jnp.sum(jnp.exp(-x) * jnp.sin(3.0 * x) / x)
+
+    assert float(jax.jit(f, compiler_options=opts)(x)) == pytest.approx(float(jax.jit(f)(x)), rel=1e-14)
+    with pytest.raises(Exception, match="No such compile option"):
+        jax.jit(f, compiler_options={**opts, "xla_not_an_option": True})(x)
