@@ -161,9 +161,9 @@ def _channel_residuals(theta, args):
 def _channel_residuals_jvp(primals, tangents):
     theta, args = primals
     t_theta, _ = tangents
-    r, linear = jax.linearize(lambda th: _stacked_residuals(th, args), theta)
     if t_theta is None:
-        return r, None
+        return _stacked_residuals(theta, args), None
+    r, linear = jax.linearize(lambda th: _stacked_residuals(th, args), theta)
     c = theta.shape[0] // 2
     ones, zeros = jnp.ones(c, theta.dtype), jnp.zeros(c, theta.dtype)
     # Columns of J summed per parameter kind: row i holds dr_i/dlog sigma_a[ch(i)] and dr_i/dlog sigma_s'[ch(i)].
