@@ -17,7 +17,13 @@ Standard errors. At the solution the Jacobian ``J`` of the weighted residuals gi
 in ``theta = (log sigma_a, log sigma_s')``; ``s^2`` is the residual variance ``RSS / (m - p)`` for relative
 residuals, and ``max(1, RSS / (m - p))`` with ``target_stderr`` (inflated when the model misses by more than the
 target's noise, as a path-traced reference shows it: the model's own error then sets the uncertainty). ``(Rd, l_d)``
-and their errors follow by the delta method through :func:`jaxsss.to_rd_ld`. A channel is **identifiable** when
+and their errors follow by the delta method through :func:`jaxsss.to_rd_ld`. A model error is not noise: it is
+smooth over the image, and neighbouring residuals share it, so the pixels carry fewer independent facts than their
+count and ``s^2 (J^T J)^-1`` claims too much. Each standard error is therefore the larger of that and the
+cluster-robust (sandwich) one over spatial blocks, ``(J^T J)^-1 (sum_b g_b g_b^T) (J^T J)^-1 K / (K - 1)`` with
+``g_b = J_b^T r_b`` the score of block ``b`` (a :data:`BLOCK_GRID` x :data:`BLOCK_GRID` grid over each view, ``K`` the
+blocks with fitted pixels): independent pixel noise gives about the same as the model-based one, while a smooth misfit
+that pulls the parameters one way on one side of the object and another way elsewhere widens it. A channel is **identifiable** when
 both coefficients have relative standard errors at most :data:`REL_STDERR_LIMIT` and their correlation is at most
 :data:`fitting.CORRELATION_LIMIT`, and the fitted ``l_d`` spans at least :data:`RESOLVED_LD_PIXELS` pixels on the
 object in the finest view (:func:`pixel_footprint`); otherwise the result's ``warnings`` say which parameter the views
@@ -72,6 +78,9 @@ class ImageFit(eqx.Module):
         rd, rd_stderr: ``(C,)`` total diffuse reflectance (Eq. 15) at the solution and its standard error.
         ld, ld_stderr: ``(C,)`` diffuse mean free path ``1 / sigma_tr`` (mm) and its standard error.
         correlation: ``(C,)`` correlation of ``log sigma_a`` and ``log sigma_s'``.
+        stderr_inflation: ``(2C,)`` cluster-robust over model-based standard error of ``log sigma_a`` then
+            ``log sigma_s'`` (module docstring): about 1 for pixel noise, well above 1 where a smooth model error
+            drives the fit; the reported standard errors use the larger of the two.
         identifiable: ``(C,)`` booleans (module docstring).
         warnings: what the views do not constrain, one line per channel concerned.
         n_pixels: pixels used, over all views.
@@ -95,6 +104,7 @@ class ImageFit(eqx.Module):
     ld_stderr: jax.Array
     correlation: jax.Array
     identifiable: jax.Array
+    stderr_inflation: jax.Array
     n_pixels: int = eqx.field(static=True)
     seconds: dict = eqx.field(static=True)
     warnings: tuple = eqx.field(static=True, default=())
@@ -116,6 +126,7 @@ class ImageFit(eqx.Module):
             "rms_relative": self.rms_relative, "sigma_a_stderr": self.sigma_a_stderr,
             "sigma_s_prime_stderr": self.sigma_s_prime_stderr, "rd": self.rd, "rd_stderr": self.rd_stderr,
             "ld": self.ld, "ld_stderr": self.ld_stderr, "correlation": self.correlation,
+            "stderr_inflation": self.stderr_inflation,
             "identifiable": np.asarray(self.identifiable).tolist(), "warnings": list(self.warnings),
             "n_pixels": self.n_pixels, "n_views": self.n_views, "seconds": self.seconds,
         })
@@ -229,7 +240,7 @@ FD_STEP = 1e-5
 """Central-difference step in ``log sigma`` for the Jacobian behind the standard errors (relative error ~1e-10)."""
 
 
-def _uncertainty(theta, residuals, args, n_res: int, absolute: bool):
+def _uncertainty(theta, residuals, args, n_res: int, absolute: bool, blocks: np.ndarray):
     """Standard errors and ``(Rd, l_d)`` at the solution (module docstring). The Jacobian is taken by central
     differences of the already compiled ``residuals`` (2 p evaluations): ``jax.jacfwd`` gives the same to 1e-10 but
     costs a compilation of its own, longer than the whole fit on small images."""
@@ -244,6 +255,14 @@ def _uncertainty(theta, residuals, args, n_res: int, absolute: bool):
         s2 = max(1.0, s2)
     cov = s2 * np.linalg.pinv(jac.T @ jac)
     c = p // 2
+    se_model = np.sqrt(np.maximum(np.diag(cov), 0.0))
+    cluster, n_blocks = _cluster_covariance(jac, res, blocks, np.any(jac != 0.0, axis=1))
+    if cluster is not None:
+        # Each standard error the larger of the two; the correlations from the model-based covariance.
+        scale = np.maximum(1.0, np.sqrt(np.maximum(np.diag(cluster), 0.0)) / np.maximum(se_model, 1e-300))
+        cov = cov * np.outer(scale, scale)
+    else:
+        scale = np.full(p, np.nan)
     se_log = np.sqrt(np.maximum(np.diag(cov), 0.0))
     corr = cov[np.arange(c), c + np.arange(c)] / np.maximum(se_log[:c] * se_log[c:], 1e-300)
 
@@ -254,7 +273,7 @@ def _uncertainty(theta, residuals, args, n_res: int, absolute: bool):
     grad = np.asarray(jax.jacfwd(rd_ld)(theta))
     rd_ld_value = np.asarray(rd_ld(theta))
     se_rd_ld = np.sqrt(np.maximum(np.diag(grad @ cov @ grad.T), 0.0))
-    return se_log, corr, rd_ld_value, se_rd_ld, coupling
+    return se_log, corr, rd_ld_value, se_rd_ld, coupling, scale, n_blocks
 
 
 CHANNEL_COUPLING_LIMIT = 1e-6
@@ -270,6 +289,38 @@ def _channel_coupling(jac: np.ndarray) -> float:
     own = (np.arange(p)[None, :] % c) == ch[:, None]
     scale = np.max(np.abs(jac), initial=0.0)
     return float(np.max(np.abs(np.where(own, 0.0, jac)), initial=0.0) / scale) if scale > 0 else 0.0
+
+
+BLOCK_GRID = 4
+"""Each view is cut into ``BLOCK_GRID x BLOCK_GRID`` spatial blocks for the cluster-robust standard errors."""
+MIN_BLOCKS = 6
+"""Fewest blocks with fitted pixels for the cluster-robust standard errors; with fewer, the model-based ones stand and
+the result's warnings say so."""
+
+
+def _blocks(views, n_channels: int) -> np.ndarray:
+    """The spatial block of every residual row (views stacked, each ``(H, W, C)`` flattened): ``BLOCK_GRID^2`` blocks
+    per view, numbered across views."""
+    out = []
+    for k, (_, target, _, _) in enumerate(views):
+        h, w = target.shape[:2]
+        y, x = np.mgrid[0:h, 0:w]
+        block = (y * BLOCK_GRID // h) * BLOCK_GRID + x * BLOCK_GRID // w + k * BLOCK_GRID**2
+        out.append(np.repeat(block.reshape(-1), n_channels))
+    return np.concatenate(out)
+
+
+def _cluster_covariance(jac: np.ndarray, res: np.ndarray, blocks: np.ndarray, fitted: np.ndarray):
+    """``(cov, K)``: the cluster-robust covariance ``B (sum_b g_b g_b^T) B K / (K - 1)``, ``B = (J^T J)^+`` and
+    ``g_b = J_b^T r_b`` over the blocks with fitted rows (``fitted``), and their number ``K`` (``cov`` None below
+    :data:`MIN_BLOCKS`)."""
+    ids = np.unique(blocks[fitted])
+    k = len(ids)
+    if k < MIN_BLOCKS:
+        return None, k
+    scores = np.stack([jac[blocks == b].T @ res[blocks == b] for b in ids])  # (K, p)
+    bread = np.linalg.pinv(jac.T @ jac)
+    return bread @ (scores.T @ scores) @ bread * (k / (k - 1)), k
 
 
 def pixel_footprint(scene) -> float:
@@ -393,12 +444,16 @@ def fit_image(scene, target_image, *, method: str = "hierarchical", max_pixels: 
     res = residuals(theta, (tuple(relative), eta, g, fresnel))
     rms = jnp.sqrt(jnp.sum(res**2) / float(n_pixels * n_channels))
     t0 = time.perf_counter()
-    se_log, corr, rd_ld, se_rd_ld, coupling = _uncertainty(theta, residuals, args, n_pixels * n_channels,
-                                                           target_stderr is not None)
+    se_log, corr, rd_ld, se_rd_ld, coupling, inflation, n_blocks = _uncertainty(
+        theta, residuals, args, n_pixels * n_channels, target_stderr is not None, _blocks(views, n_channels))
     seconds["stderr"] = time.perf_counter() - t0
     c = n_channels
     ok, warnings = _identifiability(se_log, corr, rd_ld[:c], se_rd_ld[:c], rd_ld[c:],
                                     min(pixel_footprint(sc) for sc in scenes))
+    if n_blocks < MIN_BLOCKS:
+        warnings = warnings + (f"the fitted pixels fall in {n_blocks} of the {BLOCK_GRID}x{BLOCK_GRID} blocks per view "
+                               f"(< {MIN_BLOCKS}): the standard errors assume independent pixels, which a model error "
+                               "is not; fit pixels spread over more of the object",)
     if coupling > CHANNEL_COUPLING_LIMIT:
         warnings = warnings + (f"method {entry.name!r} couples the channels (a residual moves with another "
                                f"channel's coefficients by {coupling:.2g} of the largest derivative): the solve's "
@@ -407,4 +462,4 @@ def fit_image(scene, target_image, *, method: str = "hierarchical", max_pixels: 
     return ImageFit(sa, ss, jnp.asarray(sa0), jnp.asarray(ss0), sol.result, sol.stats["num_steps"], rms,
                     sa * se_log[:c], ss * se_log[c:], jnp.asarray(rd_ld[:c]), jnp.asarray(se_rd_ld[:c]),
                     jnp.asarray(rd_ld[c:]), jnp.asarray(se_rd_ld[c:]), jnp.asarray(corr), jnp.asarray(ok),
-                    n_pixels, seconds, warnings, len(views))
+                    jnp.asarray(inflation), n_pixels, seconds, warnings, len(views))
