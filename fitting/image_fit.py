@@ -23,11 +23,12 @@ count and ``s^2 (J^T J)^-1`` claims too much. Each standard error is therefore t
 cluster-robust (sandwich) one over spatial blocks, ``(J^T J)^-1 (sum_b g_b g_b^T) (J^T J)^-1 K / (K - 1)`` with
 ``g_b = J_b^T r_b`` the score of block ``b`` (a :data:`BLOCK_GRID` x :data:`BLOCK_GRID` grid over each view, ``K`` the
 blocks with fitted pixels): independent pixel noise gives about the same as the model-based one, while a smooth misfit
-that pulls the parameters one way on one side of the object and another way elsewhere widens it. A channel is **identifiable** when
-both coefficients have relative standard errors at most :data:`REL_STDERR_LIMIT` and their correlation is at most
-:data:`fitting.CORRELATION_LIMIT`, and the fitted ``l_d`` spans at least :data:`RESOLVED_LD_PIXELS` pixels on the
-object in the finest view (:func:`pixel_footprint`); otherwise the result's ``warnings`` say which parameter the views
-do not constrain and what they do constrain (usually ``Rd``).
+that pulls the parameters one way on one side of the object and another way elsewhere widens it (what the parameters
+absorb alike everywhere leaves no trace in the residuals, and no estimate from them can show it). A channel is
+**identifiable** when both coefficients have relative standard errors at most :data:`REL_STDERR_LIMIT` and their
+correlation is at most :data:`fitting.CORRELATION_LIMIT`, and the fitted ``l_d`` spans at least
+:data:`RESOLVED_LD_PIXELS` pixels on the object in the finest view (:func:`pixel_footprint`); otherwise the result's
+``warnings`` say which parameter the views do not constrain and what they do constrain (usually ``Rd``).
 
 Fixed during the fit: ``eta`` and ``g`` (from the scene), everything geometric (sample positions, octree centroids,
 cache positions, photon walks), and the plan's shortcuts that depend on the material (cut-off radius, shared channel)

@@ -46,8 +46,9 @@ COMPILE_BOUND_OPTIONS = {"xla_cpu_use_fusion_emitters": False}
 milliseconds after a compilation of seconds). XLA:CPU's fusion emitters cost about a quarter of the compilation
 (measured 2026-11-27 on 2 shared cores, whose timings vary by ~30% between runs: the white-MC fit's program 11.4 s
 without them against 15.9 s back to back; `jaxsss fit` cold 5.2-5.5 s against 6.3 s for the dipole and 22-23 s
-against 28.5 s for mc) and gave no speed to these programs (1000 dipole fits: 0.18 s against 0.21 s). Not used for the Monte Carlo engine, which runs 36% slower
-without them (docs/architecture.md, "Compilation in the test suite")."""
+against 28.5 s for mc) and gave no speed to these programs (1000 dipole fits: 0.18 s against 0.21 s). Not used for
+the Monte Carlo engine, which runs 36% slower without them (docs/architecture.md, "Compilation in the test
+suite")."""
 
 
 def compile_bound_options() -> dict | None:
