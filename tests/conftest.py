@@ -70,18 +70,20 @@ def _release_compiled_programs():
 # Modules that take longest on a cold start (mostly compilation), heaviest first: `make test` runs the suite on two
 # xdist workers with `--dist loadscope --no-loadscope-reorder` (a module's tests and its module-scoped fixtures stay on
 # one worker; xdist's own reorder, by test count, put the notebooks last), and a heavy module scheduled last leaves the
-# other worker idle. Measured cold durations in seconds (2026-11-23, 2 cores; 2026-11-26 the notebooks: render_and_fit
-# alone 232 s before its path-traced fit went to 64 pixels at the QUICK density, that fit 152 s -> 46 s).
+# other worker idle. Cold seconds of each module's slowest tests (2026-11-27, 2 cores, fusion emitters off).
 HEAVY_FIRST = (
-    "tests/test_notebooks.py",  # ~200: render_and_fit (~125), fit_measured_materials (~75), reparameterisation
-    "tests/cli/test_run.py",  # ~120: the `jaxsss run` job (render, fit_image, Monte Carlo, mc fit)
-    "tests/fitting/test_robust.py",  # ~130: the randomised sweep subsets
-    "tests/fitting/test_mc_model.py",  # ~105
-    "tests/fitting/test_profile_fit.py",  # ~90
-    "tests/fitting/test_mco_fit.py",  # ~60
-    "tests/render/test_bssrdf.py",  # ~50
-    "tests/test_benchmarks_render.py",  # ~45
-    "tests/render/test_cache.py",  # ~40
+    "tests/test_notebooks.py",  # ~150: render_and_fit (~100), fit_measured_materials (~48), reparameterisation
+    "tests/cli/test_run.py",  # ~80: the `jaxsss run` job (render, fit_image, Monte Carlo, mc fit)
+    "tests/fitting/test_robust.py",  # ~60: the randomised sweep subsets
+    "tests/fitting/test_profile_fit.py",  # ~55
+    "tests/test_benchmarks_render.py",  # ~30
+    "tests/fitting/test_mc_model.py",  # ~30
+    "tests/render/test_cache.py",  # ~30
+    "tests/fitting/test_g_fit.py",  # ~30
+    "tests/export/test_compare_bssrdf.py",  # ~28
+    "tests/fitting/test_mco_fit.py",  # ~26
+    "tests/render/test_methods.py",  # ~26
+    "tests/render/test_bssrdf.py",  # ~21
 )
 
 
