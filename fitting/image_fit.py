@@ -254,10 +254,11 @@ def _uncertainty(theta, residuals, args, n_res: int, absolute: bool, blocks: np.
     s2 = float(res @ res) / max(n_res - p, 1)
     if absolute:
         s2 = max(1.0, s2)
-    cov = s2 * np.linalg.pinv(jac.T @ jac)
+    bread = np.linalg.pinv(jac.T @ jac)
+    cov = s2 * bread
     c = p // 2
     se_model = np.sqrt(np.maximum(np.diag(cov), 0.0))
-    cluster, n_blocks = _cluster_covariance(jac, res, blocks, np.any(jac != 0.0, axis=1))
+    cluster, n_blocks = _cluster_covariance(jac, res, bread, blocks, np.any(jac != 0.0, axis=1))
     if cluster is not None:
         # Each standard error the larger of the two; the correlations from the model-based covariance.
         scale = np.maximum(1.0, np.sqrt(np.maximum(np.diag(cluster), 0.0)) / np.maximum(se_model, 1e-300))
@@ -311,16 +312,17 @@ def _blocks(views, n_channels: int) -> np.ndarray:
     return np.concatenate(out)
 
 
-def _cluster_covariance(jac: np.ndarray, res: np.ndarray, blocks: np.ndarray, fitted: np.ndarray):
-    """``(cov, K)``: the cluster-robust covariance ``B (sum_b g_b g_b^T) B K / (K - 1)``, ``B = (J^T J)^+`` and
-    ``g_b = J_b^T r_b`` over the blocks with fitted rows (``fitted``), and their number ``K`` (``cov`` None below
+def _cluster_covariance(jac: np.ndarray, res: np.ndarray, bread: np.ndarray, blocks: np.ndarray,
+                        fitted: np.ndarray):
+    """``(cov, K)``: the cluster-robust covariance ``B (sum_b g_b g_b^T) B K / (K - 1)``, ``bread = B = (J^T J)^+``
+    and ``g_b = J_b^T r_b`` over the blocks with fitted rows (``fitted``), and their number ``K`` (``cov`` None below
     :data:`MIN_BLOCKS`)."""
-    ids = np.unique(blocks[fitted])
+    ids, which = np.unique(blocks[fitted], return_inverse=True)
     k = len(ids)
     if k < MIN_BLOCKS:
         return None, k
-    scores = np.stack([jac[blocks == b].T @ res[blocks == b] for b in ids])  # (K, p)
-    bread = np.linalg.pinv(jac.T @ jac)
+    scores = np.zeros((k, jac.shape[1]))
+    np.add.at(scores, which, jac[fitted] * res[fitted, None])  # (K, p): each block's J_b^T r_b, one pass
     return bread @ (scores.T @ scores) @ bread * (k / (k - 1)), k
 
 

@@ -19,7 +19,7 @@ def test_float64_is_default():
 def test_cache_dir_follows_environment(monkeypatch, tmp_path):
     monkeypatch.setenv(CACHE_ENV, str(tmp_path / "c"))
     assert jaxsss.compilation_cache_dir() == tmp_path / "c" / host_key()
-    for off in ("0", "off", "False", "no"):
+    for off in ("0", "off", "False", "no", ""):
         monkeypatch.setenv(CACHE_ENV, off)
         assert jaxsss.compilation_cache_dir() is None
     monkeypatch.delenv(CACHE_ENV)

@@ -31,8 +31,8 @@ per mm^2, with a '#' header of the parameters.
 The photons are split over one JAX device per usable core (--devices N to choose, or JAX_NUM_CPU_DEVICES=N in the
 environment; on a GPU machine, the GPUs): each device runs its share with its own random stream, so a result is
 reproducible for a given seed and device count, and results for different counts agree within their standard
-errors. Compiled programs are cached on disk
-(~/.cache/jaxsss/jax; JAXSSS_COMPILATION_CACHE=DIR or off), so only the first run of a kind compiles."""
+errors. Compiled programs are cached on disk (~/.cache/jaxsss/jax; JAXSSS_COMPILATION_CACHE=DIR or off), so only
+the first run of a kind compiles."""
 
 
 def add_parser(subparsers) -> argparse.ArgumentParser:

@@ -172,7 +172,7 @@ def test_cluster_covariance_of_noise_and_of_a_smooth_misfit():
 
     def cluster_se(res):
         res = res - jac @ np.linalg.lstsq(jac, res, rcond=None)[0]  # at the solution: J^T r = 0
-        cov, k = _cluster_covariance(jac, res, blocks, fitted)
+        cov, k = _cluster_covariance(jac, res, np.linalg.pinv(jac.T @ jac), blocks, fitted)
         assert k == 16
         return np.sqrt(np.diag(cov))
 
@@ -185,7 +185,7 @@ def test_cluster_covariance_of_noise_and_of_a_smooth_misfit():
     assert np.all(cluster_se(noisy) > 3.0 * model)
     # Too few blocks with fitted rows: not estimated.
     few = np.isin(blocks, [0, 1])
-    assert _cluster_covariance(jac, np.ones(h * w), blocks, few) == (None, 2) and MIN_BLOCKS > 2
+    assert _cluster_covariance(jac, np.ones(h * w), np.eye(2), blocks, few) == (None, 2) and MIN_BLOCKS > 2
 
 
 def test_a_smooth_model_error_widens_the_standard_errors():
