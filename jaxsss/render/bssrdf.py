@@ -376,30 +376,41 @@ class WhiteKernel(eqx.Module):
             r = jnp.broadcast_to(r[:, None, None], (r.shape[0], n_k, n_c))
         x = (jnp.log(jnp.maximum(r * self.sigma_s, GRID_RHO_MIN)) - x0) / dx  # (P, K, C)
         node = jnp.clip(jnp.floor(x), 0.0, n_grid - 2.0)
-        i = node.astype(jnp.int32)
         t = x - node
-        k, c = jnp.arange(n_k)[None, :, None], jnp.arange(n_c)[None, None, :]
-        y0, y1 = self.log_R[k, i, c], self.log_R[k, i + 1, c]
+        # One gather of (log R_i, log R_i+1 - log R_i) per element from the flattened (K, G - 1, C) intervals.
+        slope = self.log_R[:, 1:] - self.log_R[:, :-1]
+        table = jnp.stack([self.log_R[:, :-1], slope], axis=-1).reshape(-1, 2)
+        k = jnp.arange(n_k, dtype=jnp.int32)[None, :, None]
+        c = jnp.arange(n_c, dtype=jnp.int32)[None, None, :]
+        y = table[(k * (n_grid - 1) + node.astype(jnp.int32)) * n_c + c]
         # Linear interpolation of log R in log(r sigma_s); R = sigma_s^2 R_optical.
-        return jnp.exp(y0 + t * (y1 - y0)) * self.sigma_s**2
+        return jnp.exp(y[..., 0] + t * y[..., 1]) * self.sigma_s**2
 
     def value_shape(self, flux_shape):
         return tuple(flux_shape[-2:])
 
-    def _distance(self, delta, flux):
-        """``(r, F)``: the distance from each node's (shifted) point of entry, ``(P,)`` or ``(P, K, C)`` mm, and the
-        incident flux ``(P, K, C)``; ``s_k = shift_length V_k / F_k`` is the entity's mean forward shift."""
+    def sources(self, flux):
+        """What the sums gather per entity, from its flux: with a shift, ``(E, 4, K, C)`` incident flux ``F_k`` and
+        travel ``V_k`` (:func:`incident_flux`, summed over the entity) become ``F_k`` and the mean forward shift
+        ``s_k = shift_length V_k / F_k`` (mm), once per entity instead of once per pair; unchanged without one."""
         if self.shift_length is None:
-            return jnp.sqrt(jnp.maximum(jnp.sum(delta * delta, axis=-1), 1e-300)), flux
-        f, v = flux[:, 0], flux[:, 1:]  # (P, K, C), (P, 3, K, C)
-        s = self.shift_length * v / jnp.where(f > 0, f, 1.0)[:, None]
-        d = delta[:, :, None, None] - s
+            return flux
+        f, v = flux[:, 0], flux[:, 1:]  # (E, K, C), (E, 3, K, C)
+        return jnp.concatenate([f[:, None], self.shift_length * v / jnp.where(f > 0, f, 1.0)[:, None]], axis=1)
+
+    def _distance(self, delta, sources):
+        """``(r, F)``: the distance from each node's (shifted) point of entry, ``(P,)`` or ``(P, K, C)`` mm, and the
+        incident flux ``(P, K, C)``, from the pairs' :meth:`sources`."""
+        if self.shift_length is None:
+            return jnp.sqrt(jnp.maximum(jnp.sum(delta * delta, axis=-1), 1e-300)), sources
+        d = delta[:, :, None, None] - sources[:, 1:]
         # Oblique incidence: the profile about the shifted point of entry.
-        return jnp.sqrt(jnp.maximum(jnp.sum(d * d, axis=1), 1e-300)), f
+        return jnp.sqrt(jnp.maximum(jnp.sum(d * d, axis=1), 1e-300)), sources[:, 0]
 
     def _curved(self, r, delta, normals):
         """``R_k(r)`` ``(P, K, C)``, times the curvature ratio of :mod:`jaxsss.render.curvature` when the kernel has
-        one and the pairs' normals ``(n_x, n_P)`` (each ``(P, 3)``) are given."""
+        one and the pairs' normals ``(n_x, n_P)`` (each ``(P, 3)``) are given, at each node's distance ``r`` (from
+        its shifted point of entry: the ratio's dipole sits below it)."""
         if r.ndim == 1:
             r = jnp.broadcast_to(r[:, None, None], (r.shape[0],) + self.log_R.shape[:1] + self.log_R.shape[-1:])
         out = self.profile(r)
@@ -409,20 +420,20 @@ class WhiteKernel(eqx.Module):
         # Half-space profile x the sphere-to-plane diffusion ratio of the pair's curvature.
         return out * curvature_ratio(r, kappa, *self.curvature)
 
-    def pair(self, delta, flux, normals=None):
-        """``(P, K, C)``: ``R_k(|delta - s_k|) F_k`` for offsets ``delta = x - P`` ``(P, 3)`` mm (``s_k = 0`` without
-        a shift), times the curvature ratio when ``normals = (n_x, n_P)`` are given. The nodes stay apart: their exit
-        distributions differ (:func:`exit_radiance_nodes`)."""
-        r, f = self._distance(delta, flux)
+    def pair(self, delta, sources, normals=None):
+        """``(P, K, C)``: ``R_k(|delta - s_k|) F_k`` for offsets ``delta = x - P`` ``(P, 3)`` mm and the entities'
+        :meth:`sources` (``s_k = 0`` without a shift), times the curvature ratio when ``normals = (n_x, n_P)`` are
+        given. The nodes stay apart: their exit distributions differ (:func:`exit_radiance_nodes`)."""
+        r, f = self._distance(delta, sources)
         return self._curved(r, delta, normals) * f
 
-    def near_terms(self, delta, flux, area, rho0, normals=None):
+    def near_terms(self, delta, sources, area, rho0, normals=None):
         """A near pair's ``(point, w F, w A)``, each ``(P, K, C)``, with the near-field weight at the distance from
         the *shifted* entry point, so that the point part ``(1 - w) R`` vanishes where ``R`` peaks
         (:func:`jaxsss.render.radiance.exitance_near`)."""
         from jaxsss.render.radiance import near_weight
 
-        r, f = self._distance(delta, flux)
+        r, f = self._distance(delta, sources)
         if r.ndim == 1:
             r = jnp.broadcast_to(r[:, None, None], f.shape)
         w = near_weight(r, rho0)

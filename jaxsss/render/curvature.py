@@ -76,11 +76,22 @@ def _sphere_exitance(d, kappa, z_r, z_b, s):
     dv = jnp.sqrt(h * h + outside * d2)
     nv = -h + outside * kappa * d2 / 2.0
     # Its strength cancels the fluence on the extrapolated sphere at the pair's angle: -(d2e / d1e) exp(-s (d1e -
-    # d2e)), the distances from the source and the image to that point (Kelvin's -a_e / b when s = 0; -1 flat).
+    # d2e)), the distances from the source and the image to that point. On that sphere d2e / d1e = a_e / b at every
+    # angle (Kelvin), so d2e = q d1e (the strength is Kelvin's -a_e / b when s = 0; -1 flat).
+    q = (1.0 + k_b) / inside
     d1e = jnp.sqrt((z_b + z_r) ** 2 + (1.0 + k_b) * inside * d2)
-    d2e = jnp.sqrt(((1.0 + k_b) * (z_b + z_r) / inside) ** 2 + (1.0 + k_b) ** 3 / inside * d2)
     return (n1 * (1.0 + s * d1) * jnp.exp(-s * (d1 - ref)) / d1**3
-            - (d2e / d1e) * nv * (1.0 + s * dv) * jnp.exp(-s * (dv - ref + d1e - d2e)) / dv**3)
+            - q * nv * (1.0 + s * dv) * jnp.exp(-s * (dv - ref + (1.0 - q) * d1e)) / dv**3)
+
+
+def _plane_exitance(d, z_r, z_b, s):
+    """:func:`_sphere_exitance` at ``kappa = 0`` in closed form: Jensen et al. 2001 Eq. 4 (real source at ``z_r``,
+    image at ``z_v = z_r + 2 z_b``), on the same scale."""
+    z_v = z_r + 2.0 * z_b
+    d2 = d * d
+    ref = jnp.sqrt(z_r * z_r + d2)
+    dv = jnp.sqrt(z_v * z_v + d2)
+    return z_r * (1.0 + s * ref) / ref**3 + z_v * (1.0 + s * dv) * jnp.exp(-s * (dv - ref)) / dv**3
 
 
 def curvature_ratio(d, kappa, sigma_a, sigma_s_prime, A):
@@ -105,5 +116,5 @@ def curvature_ratio(d, kappa, sigma_a, sigma_s_prime, A):
     kappa = jnp.clip(kappa, 0.0, k_max)
     # Jensen et al. 2001 Eq. 4 on a sphere (image at Kelvin's point) over the same on a plane; >= 0 (rounding can
     # leave a tiny negative value where the profile itself has underflowed: strong absorption, far pairs).
-    ratio = _sphere_exitance(d, kappa, z_r, z_b, s) / _sphere_exitance(d, jnp.zeros_like(kappa), z_r, z_b, s)
-    return jnp.maximum(ratio, 0.0)
+    ratio = _sphere_exitance(d, kappa, z_r, z_b, s) / _plane_exitance(d, z_r, z_b, s)
+    return jnp.where(kappa > 0.0, jnp.maximum(ratio, 0.0), 1.0)

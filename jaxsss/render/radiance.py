@@ -82,6 +82,10 @@ class DipoleKernel(eqx.Module):
 
     medium: Medium
 
+    def sources(self, flux):
+        """What the sums gather per entity: the flux itself."""
+        return flux
+
     def pair(self, delta, flux, normals=None):  # normals: the white kernels' curvature; the dipole stays flat
         r = jnp.sqrt(jnp.maximum(jnp.sum(delta * delta, axis=-1), 1e-300))
         return _dipole(r[:, None], self.medium) * flux
@@ -245,8 +249,8 @@ def exitance_near(medium: Medium, query_pos, sample_pos, sample_area, sample_flu
         return jax.ops.segment_sum(v, near_query, num_segments=n_q + 1, indices_are_sorted=True)[:n_q]
 
     pair_normals = None if normals is None else (normals[0][jnp.minimum(near_query, n_q - 1)], normals[1][near_sample])
-    point, w_flux, w_area = kernel.near_terms(delta, sample_flux[near_sample], sample_area[near_sample], rho0,
-                                              pair_normals)
+    point, w_flux, w_area = kernel.near_terms(delta, kernel.sources(sample_flux)[near_sample],
+                                              sample_area[near_sample], rho0, pair_normals)
     area = seg(w_area)
     spread = seg(w_flux) / _per_pair(jnp.where(area > 0, area, 1.0), w_flux)
     return kernel.disc(spread, rho0) + seg(point)
@@ -276,10 +280,11 @@ def exitance_pairs(medium: Medium, query_pos, ent_pos, ent_flux, pair_query, pai
     """
     n_q = query_pos.shape[0]
     kernel = _kernel(medium, kernel, shared_channel)
+    sources = kernel.sources(ent_flux)
 
     def contrib(q, e):
         # Hierarchical paper Eq. 13: each entity contributes Phi_v R_d(|x - P_v|).
-        return kernel.pair(query_pos[q] - ent_pos[e], ent_flux[e],
+        return kernel.pair(query_pos[q] - ent_pos[e], sources[e],
                            None if normals is None else (normals[0][q], normals[1][e]))
 
     return scan_pairs(contrib, n_q, kernel.value_shape(ent_flux.shape), ent_flux.dtype, pair_query, pair_entity)
@@ -406,16 +411,17 @@ def exitance_direct(medium: Medium, query_pos, sample_pos, sample_flux, sample_a
         [normals[0], jnp.broadcast_to(normals[0][:1], (pad, 3))]).reshape(-1, block, 3)
     kernel = _kernel(medium, kernel, shared_channel)
     n_s = sample_pos.shape[0]
+    sources = kernel.sources(sample_flux)
 
     @jax.checkpoint
     def one(args):
         q, n = args
         delta = (q[:, None, :] - sample_pos[None, :, :]).reshape(-1, 3)  # (block * N, 3)
-        flux = jnp.broadcast_to(sample_flux[None], (q.shape[0],) + sample_flux.shape)
+        flux = jnp.broadcast_to(sources[None], (q.shape[0],) + sources.shape)
         area = jnp.broadcast_to(sample_area[None], (q.shape[0], n_s)).reshape(-1)
         pair_normals = None if n is None else (jnp.repeat(n, n_s, axis=0),
                                                jnp.tile(normals[1][:n_s], (q.shape[0], 1)))
-        point, w_flux, w_area = kernel.near_terms(delta, flux.reshape((-1,) + sample_flux.shape[1:]), area, rho0,
+        point, w_flux, w_area = kernel.near_terms(delta, flux.reshape((-1,) + sources.shape[1:]), area, rho0,
                                                   pair_normals)
 
         def per_query(v):

@@ -140,7 +140,7 @@ def test_shifted_pair_is_the_profile_about_the_shifted_entry(skin_kernel):
     # Node mu = 0.5 takes all of it, incident (no Fresnel factor): A E.
     np.testing.assert_allclose(np.asarray(flux[0, 0]), np.outer(np.eye(5)[2], [0.5, 1.0, 1.5]), atol=1e-15)
     delta = jnp.array([[2.0, 1.0, 0.0]])
-    got = np.asarray(kernel.pair(delta, flux))[0, 2]
+    got = np.asarray(kernel.pair(delta, kernel.sources(flux)))[0, 2]
     shift = np.asarray(kernel.shift_length)[2] * np.sqrt(0.75)  # (C,) mm along +x
     r = np.sqrt((2.0 - shift) ** 2 + 1.0)
     want = [np.asarray(kernel.profile(jnp.array([rc])))[0, 2, c] * [0.5, 1.0, 1.5][c] for c, rc in enumerate(r)]
