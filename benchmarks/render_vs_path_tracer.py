@@ -41,9 +41,9 @@ import numpy as np
 ROOT = Path(__file__).resolve().parents[1]
 REFERENCES = ROOT / "tests" / "export" / "references"
 NAME = "render_vs_path_tracer"
-SCENES = ("skin1_sphere", "g09_sphere", "skin1_sphere_env", "marble_teapot", "skin1_sphere_env13")
+SCENES = ("skin1_sphere", "g09_sphere", "skin1_sphere_env", "marble_teapot", "skin1_sphere_env13", "ketchup_sphere")
 REFERENCE_SPP = {"skin1_sphere": 8192, "g09_sphere": 8192, "skin1_sphere_env": 65536, "marble_teapot": 16384,
-                 "skin1_sphere_env13": 32768}
+                 "skin1_sphere_env13": 32768, "ketchup_sphere": 8192}
 REFERENCE_SEEDS = (0, 1)  # two halves, averaged; their difference measures the reference's noise
 LLVM_CANDIDATES = ("/usr/lib/x86_64-linux-gnu/libLLVM-19.so", "/usr/lib/x86_64-linux-gnu/libLLVM.so.19.1")
 ERROR_METRIC = "max over RGB of mean |relative error| over lit fully covered pixels vs the Mitsuba reference"

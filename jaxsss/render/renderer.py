@@ -22,6 +22,7 @@ from tqdm import tqdm
 from jaxsss.medium import Medium
 from jaxsss.render import radiance as rad
 from jaxsss.render.bssrdf import exit_model_for, incident_flux, surface_tangents, white_kernel, white_tables
+from jaxsss.render.passage import interaction_probability
 from jaxsss.render.camera import camera_frame
 from jaxsss.render.methods import Preparation, register_method
 from jaxsss.render.octree import build_octree
@@ -64,6 +65,8 @@ class Prepared(ReflectingPoints):
     # The BSSRDF kernel (jaxsss.render.bssrdf): its oblique sources (white_tables; None: the dipole).
     bssrdf_tables: tuple | None = None
     light_tangent: jax.Array | None = None  # (N, L, 3) travel direction inside, on the surface (white-oblique)
+    # (N, L) mm: each light column's refracted path inside the object (white kernels; jaxsss.render.passage)
+    light_chord: jax.Array | None = None
     # (E, 3) unit area-weighted mean normal of each entity (white kernels: the pairs' curvature; None: flat)
     ent_normal: jax.Array | None = None
     bssrdf: str = eqx.field(static=True, default="dipole")
@@ -74,7 +77,13 @@ class Prepared(ReflectingPoints):
         """Flux at each sample, W: ``(N, C)`` entering the medium (dipole), or ``(N, K, C)`` incident per incidence
         node (white kernels; :func:`jaxsss.render.bssrdf.incident_flux`)."""
         if self.bssrdf != "dipole":
-            return incident_flux(self.bssrdf_mus, self.areas, self.light_cos, self.light_irradiance, self.indirect,
+            irradiance = self.light_irradiance
+            if self.light_chord is not None:
+                g = 0.0 if medium.g is None else medium.g
+                # Uncollided passage: only the light that interacts before its chord ends enters the profile.
+                irradiance = irradiance * interaction_probability(
+                    self.light_chord, medium.sigma_a + medium.sigma_s_prime / (1.0 - g))
+            return incident_flux(self.bssrdf_mus, self.areas, self.light_cos, irradiance, self.indirect,
                                  self.texture, self.light_tangent)
         return rad.transmitted_flux(medium, self.areas, self.light_cos, self.light_irradiance, self.indirect,
                                     self.texture)
@@ -158,7 +167,7 @@ def irradiance_pass(scene, plan: ScenePlan):
     octree (centroids weighted by the channel-mean direct plus indirect flux)."""
     geometry = SceneGeometry(scene.mesh, [o.mesh for o in scene.occluders])
     samples = irradiance_samples(scene, geometry, plan.n_samples, shadows=plan.shadows, indirect=plan.indirect,
-                                 seed=scene.render.seed)
+                                 seed=scene.render.seed, chords=plan.bssrdf != "dipole")
     t0 = time.perf_counter()
     weight = samples.areas * samples.light.irradiance.sum(axis=1).mean(axis=-1)
     if samples.indirect is not None:
@@ -219,6 +228,7 @@ def assemble_prepared(scene, plan: ScenePlan, samples, tree, shading: ShadingPoi
         mirror=reflect,
         bssrdf_tables=tables,
         light_tangent=tangent,
+        light_chord=opt(None if samples.chord is None or plan.bssrdf == "dipole" else samples.chord[order]),
         ent_normal=ent_normal,
         bssrdf=plan.bssrdf,
         bssrdf_mus=tuple(mus),

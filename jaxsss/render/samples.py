@@ -50,6 +50,8 @@ class IrradianceSamples(NamedTuple):
         light: direct light at the samples (``cos (N, L)``, ``irradiance (N, L, C)`` in W/mm^2).
         indirect: ``(N, C)`` diffuse indirect irradiance, W/mm^2, or ``None``.
         texture: ``(N, C)`` texture multiplier, or ``None``.
+        chord: ``(N, L)`` mm, each light column's refracted path inside the object
+            (:func:`jaxsss.render.passage.entry_chords`), or ``None`` (not traced).
     """
 
     positions: np.ndarray
@@ -59,6 +61,7 @@ class IrradianceSamples(NamedTuple):
     light: LightField
     indirect: np.ndarray | None
     texture: np.ndarray | None
+    chord: np.ndarray | None = None
 
     @property
     def n(self) -> int:
@@ -192,7 +195,7 @@ def indirect_irradiance(scene, geometry, points, normals, *, n_rays: int = 16, s
 
 
 def irradiance_samples(scene, geometry, n: int, *, shadows: bool, indirect: bool, seed: int = 0,
-                       indirect_rays: int = 16) -> IrradianceSamples:
+                       indirect_rays: int = 16, chords: bool = False) -> IrradianceSamples:
     """Pass 1: ``n`` samples on the translucent mesh with their direct (and optionally indirect) irradiance.
 
     Args:
@@ -201,6 +204,8 @@ def irradiance_samples(scene, geometry, n: int, *, shadows: bool, indirect: bool
         n: number of samples to ask for (see :func:`sample_count`).
         shadows: cast shadow rays (the plan leaves them out for a convex object alone in the scene).
         indirect: add one-bounce indirect irradiance off occluders.
+        chords: trace each light column's refracted ray through the object (:mod:`jaxsss.render.passage`; the white
+            kernels weight the flux by the probability of interacting along it).
     """
     positions, face, areas = sample_surface(scene.mesh, n, seed)
     normals = geometry.shading_normals(face, positions)
@@ -212,4 +217,9 @@ def irradiance_samples(scene, geometry, n: int, *, shadows: bool, indirect: bool
         from jaxsss.render.meshes import uv_at
 
         tex = texture_lookup(scene.material.texture, uv_at(scene.mesh, positions, face))
-    return IrradianceSamples(positions, normals, areas, face, light, ind, tex)
+    chord = None
+    if chords:
+        from jaxsss.render.passage import entry_chords
+
+        chord = entry_chords(geometry, positions, normals, light.to_light, light.cos, float(scene.material.medium.eta))
+    return IrradianceSamples(positions, normals, areas, face, light, ind, tex, chord)
