@@ -178,6 +178,41 @@ def _mitsuba_rows(name, scene, ref, coverage, pixels, spps):
     return rows
 
 
+def _error_vs_seconds(rows, path):
+    """One panel per scene: error (max over RGB of mare_lit) against seconds, Mitsuba's spp sweep as a line, each
+    jaxsss row as a labelled marker (the harness's single panel is unreadable with six scenes)."""
+    import matplotlib.pyplot as plt
+    from matplotlib.ticker import NullFormatter, ScalarFormatter
+
+    scenes = list(dict.fromkeys(r["scene"] for r in rows))
+    cols = 3
+    fig, axes = plt.subplots(-(-len(scenes) // cols), cols, figsize=(4.6 * cols, 3.6 * -(-len(scenes) // cols)),
+                             squeeze=False, layout="constrained")
+    for ax, name in zip(axes.flat, scenes):
+        mine = [r for r in rows if r["scene"] == name]
+        mi = sorted((r for r in mine if r["renderer"] == "mitsuba"), key=lambda r: r["spp"])
+        ax.plot([r["seconds"] for r in mi], [r["error"] for r in mi], "o-", color="0.4", label="Mitsuba")
+        for r in mi:
+            ax.annotate(f"{r['spp']} spp", (r["seconds"], r["error"]), fontsize=7, xytext=(3, 3),
+                        textcoords="offset points")
+        for r in (r for r in mine if r["renderer"] == "jaxsss"):
+            ax.plot(r["seconds"], r["error"], "s" if r["setting"].startswith("hierarchical") else "^",
+                    label=r["setting"])
+        ax.set(xscale="log", yscale="log", title=name, xlabel="seconds (compilation apart)")
+        for axis in (ax.xaxis, ax.yaxis):  # minor labels of a short log range overlap
+            axis.set_minor_formatter(NullFormatter())
+            axis.set_major_formatter(ScalarFormatter())
+        ax.grid(True, which="both", alpha=0.3)
+        ax.legend(fontsize=6, loc="upper right")
+    for ax in axes.flat[len(scenes):]:
+        ax.set_axis_off()
+    axes[0, 0].set_ylabel("max over RGB of mare_lit")
+    fig.suptitle("jaxsss vs Mitsuba volpathmis: error against the high-spp reference vs seconds")
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+    return path
+
+
 def _error_maps(panels, path):
     import matplotlib
 
@@ -238,6 +273,7 @@ def main(argv=None) -> int:
              "seconds: jaxsss whole render minus JAX compilation; Mitsuba mi.render after one warm-up render per scene"]
     json_path, png_path = write_results(NAME + args.tag, rows, args.out, quick=args.quick, summary=summary,
                                         notes=notes, title="jaxsss vs Mitsuba volpathmis: error vs seconds")
+    png_path = _error_vs_seconds(rows, png_path)
     maps = _error_maps(panels, Path(args.out) / f"{NAME}{args.tag}_maps.png")
     def rnd(v):  # null (no terminator band under an environment) prints as nan
         return np.round(np.asarray(v, dtype=float), 3).tolist()
