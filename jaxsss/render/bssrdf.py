@@ -87,8 +87,8 @@ from jaxsss.render.curvature import curvature_ratio, pair_curvature
 
 __all__ = ["BSSRDFS", "GRID_PER_DECADE", "OBLIQUE_MUS", "WhiteKernel", "chandrasekhar_h", "choose_bssrdf",
            "exit_distribution", "exit_radiance_nodes", "hat_weights", "surface_tangents",
-           "incident_flux", "oblique_dir", "oblique_pairs", "oblique_sources", "WhiteSources", "white_kernel",
-           "white_table", "white_tables"]
+           "incident_flux", "oblique_dir", "oblique_pairs", "oblique_sources", "shift_reach", "WhiteSources",
+           "white_kernel", "white_table", "white_tables"]
 
 BSSRDFS = ("auto", "dipole", "white", "white-oblique")
 """The values of the ``bssrdf`` option (``"auto"``: the plan chooses)."""
@@ -462,6 +462,27 @@ class WhiteKernel(eqx.Module):
     def disc(self, spread, rho0):
         """``(Q, K, C)``: ``E_k I_w,k`` for the near field's mean incident flux density ``spread`` ``(Q, K, C)``."""
         return spread * self.weighted_disc(rho0)
+
+
+def shift_reach(medium: Medium, bssrdf: str, mus: tuple = KERNEL_MUS) -> float:
+    """How far (mm) the ``white-oblique`` kernel moves a profile's centre from its sample at most: the largest
+    ``SHIFT_RATIO(alpha') sin(theta_t) / sigma_t'`` over the channels and the oblique nodes ``mus``, with ``sin
+    theta_t <= 1 / eta``; 0 for the other kernels (NumPy, for the geometry-only pair lists).
+
+    The hierarchical sum hands a sample to the near field (its disc average about the shifted entry point) when it
+    lies within ``rho_0`` of the shaded point *plus this reach*: a sample farther than ``rho_0`` whose shifted
+    entry point is close would otherwise be summed as a point at the profile's peak (on the ketchup sphere, whose
+    red shifts by up to 3.75 mm against a ``rho_0`` of 2.7 mm, that made the hierarchical image 4% brighter in sum
+    than the direct sum; docs/path_tracer.md)."""
+    if bssrdf != "white-oblique":
+        return 0.0
+    sigma_a = np.atleast_1d(np.asarray(medium.sigma_a, dtype=np.float64))
+    sigma_s_prime = np.atleast_1d(np.asarray(medium.sigma_s_prime, dtype=np.float64))
+    sigma_t_prime = sigma_a + sigma_s_prime
+    ratio = [np.interp(sigma_s_prime / sigma_t_prime, SHIFT_ALBEDO, np.asarray(SHIFT_RATIO)[:, OBLIQUE_MUS.index(mu)])
+             for mu in mus]
+    # Oblique incidence: the shift SHIFT_RATIO sin(theta_t) / sigma_t', at its largest sin(theta_t) = 1 / eta.
+    return float(np.max(np.asarray(ratio) / sigma_t_prime) / max(float(np.max(np.asarray(medium.eta))), 1.0))
 
 
 def _entry_ratio(n: float, mu: float) -> float:

@@ -61,6 +61,7 @@ from jaxsss.fresnel import fresnel_reflectance
 from jaxsss.medium import Medium
 from jaxsss.reflectance import medium_total_diffuse_reflectance
 from jaxsss.render import radiance as rad
+from jaxsss.render.bssrdf import shift_reach
 from jaxsss.render.camera import camera_rays
 from jaxsss.render.methods import Preparation, register_method, resolve_method
 from jaxsss.render.pairs import pair_info, pair_lists
@@ -386,7 +387,8 @@ def prepare_cached(scene, error_bound: float, *, eps: float | None = None, resol
     samples, tree, shading, placement, timings = geo.samples, geo.tree, geo.shading, geo.placement, geo.timings
     t0 = time.perf_counter()
     cache_shading = shading.subset(placement.cache_point)
-    pairs = pair_lists(tree, samples, cache_shading.pos, geo.plan, progress=progress)
+    pairs = pair_lists(tree, samples, cache_shading.pos, geo.plan, progress=progress,
+                       near_margin=shift_reach(scene.material.medium, geo.plan.bssrdf))
     timings["interactions"] = time.perf_counter() - t0
     cache = assemble_prepared(scene, geo.plan, samples, tree, cache_shading, pairs, mirror=False)
     points = assemble_prepared(scene, geo.plan, samples, tree, shading, None)

@@ -59,7 +59,7 @@ def pair_blocks(values: np.ndarray, fill: int, block: int) -> np.ndarray:
 
 def split_near(inter, q_pos, tree, sorted_pos, rho0, chunk: int = 1 << 22):
     """Split an interaction list into far pairs (summed point by point) and near (query, sample) pairs closer than
-    ``rho0``. Returns ``(far_mask, near_query, near_sample, nodes_inside)`` where ``nodes_inside``
+    ``rho0`` (the near list's radius: the near-field radius plus any shift of the kernel). Returns ``(far_mask, near_query, near_sample, nodes_inside)`` where ``nodes_inside``
     counts accepted octree nodes whose centroid lies within ``rho0`` (0 unless eps is very large: a node there
     subtends a solid angle far above any sensible eps)."""
     n = tree.n_samples
@@ -81,14 +81,18 @@ def near_radius(samples) -> float:
     return NEAR_RADIUS_IN_SAMPLES * math.sqrt(float(np.mean(samples.areas)) / math.pi)
 
 
-def pair_lists(tree, samples, q_pos, plan, *, progress: bool = False, block_pairs: int = BLOCK_PAIRS) -> PairLists:
+def pair_lists(tree, samples, q_pos, plan, *, progress: bool = False, block_pairs: int = BLOCK_PAIRS,
+               near_margin: float = 0.0) -> PairLists:
     """Interaction lists for the points ``q_pos`` ``(Q, 3)`` against the sample octree ``tree`` (plan's ``eps`` and
-    ``r_cut``): far pairs in blocks, near pairs, and counts. ``plan.method == "direct"`` gives no lists."""
+    ``r_cut``): far pairs in blocks, near pairs, and counts. ``plan.method == "direct"`` gives no lists.
+    ``near_margin`` (mm): samples within ``rho0 + near_margin`` go to the near list (a kernel that shifts its profile
+    by up to that much, :func:`jaxsss.render.bssrdf.shift_reach`); the near-field radius stays ``rho0``."""
     rho0 = near_radius(samples)
     if plan.method == "direct" or len(q_pos) == 0:
         return PairLists(None, None, None, None, rho0, np.full(len(q_pos), samples.n), 0)
     inter = build_interactions(tree, q_pos, plan.eps, r_cut=plan.r_cut, progress=progress)
-    far, near_q, near_s, nodes_inside = split_near(inter, q_pos, tree, samples.positions[tree.order], rho0)
+    far, near_q, near_s, nodes_inside = split_near(inter, q_pos, tree, samples.positions[tree.order],
+                                                   rho0 + near_margin)
     pq = jnp.asarray(pair_blocks(inter.query[far].astype(np.int32), len(q_pos), block_pairs))
     pe = jnp.asarray(pair_blocks(inter.entity[far].astype(np.int32), 0, block_pairs))
     return PairLists(pq, pe, near_q, near_s, rho0, inter.counts(), nodes_inside)

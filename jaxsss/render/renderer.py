@@ -21,7 +21,8 @@ from tqdm import tqdm
 
 from jaxsss.medium import Medium
 from jaxsss.render import radiance as rad
-from jaxsss.render.bssrdf import exit_model_for, incident_flux, surface_tangents, white_kernel, white_tables
+from jaxsss.render.bssrdf import (exit_model_for, incident_flux, shift_reach, surface_tangents, white_kernel,
+                                  white_tables)
 from jaxsss.render.passage import interaction_probability
 from jaxsss.render.camera import camera_frame
 from jaxsss.render.methods import Preparation, register_method
@@ -287,7 +288,8 @@ def prepare(scene, *, method: str | None = None, eps: float | None = None, resol
     bar.update()
 
     t0 = time.perf_counter()
-    pairs = pair_lists(tree, samples, shading.pos, plan, progress=progress, block_pairs=block_pairs)
+    pairs = pair_lists(tree, samples, shading.pos, plan, progress=progress, block_pairs=block_pairs,
+                       near_margin=shift_reach(scene.material.medium, plan.bssrdf))
     timings["interactions"] = time.perf_counter() - t0
     bar.update()
     bar.close()
