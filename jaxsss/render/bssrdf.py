@@ -64,8 +64,8 @@ their area-weighted mean normal, :attr:`jaxsss.render.renderer.Prepared.ent_norm
 Passage (``"white*"``). A half-space takes in all the light that enters it; on a curved or thin part light entering
 at grazing incidence can run through the object and leave without interacting. Pass 1 traces each light column's
 refracted ray to where it leaves the mesh and the incident flux is weighted by the probability of interacting on the
-way, ``1 - exp(-sigma_t t)`` (:mod:`jaxsss.render.passage`; on the 20 mm skin1 sphere under a point light the
-terminator band goes from 0.169 / 0.138 / 0.147 to 0.124 / 0.114 / 0.139 against Mitsuba).
+way, ``1 - exp(-sigma_t t)`` (:mod:`jaxsss.render.passage`; with it the terminator band of the 20 mm skin1 sphere
+under a point light is within 15% of Mitsuba in every channel, docs/path_tracer.md).
 
 Which kernel a scene gets is the scene plan's decision (:func:`choose_bssrdf`): ``white-oblique`` for every ``g <
 FORWARD_G`` and ``eta`` in the family's range, the dipole with its reason otherwise (``g >= FORWARD_G``, ``eta`` or
