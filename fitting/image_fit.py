@@ -24,7 +24,14 @@ cluster-robust (sandwich) one over spatial blocks, ``(J^T J)^-1 (sum_b g_b g_b^T
 ``g_b = J_b^T r_b`` the score of block ``b`` (a :data:`BLOCK_GRID` x :data:`BLOCK_GRID` grid over each view, ``K`` the
 blocks with fitted pixels): independent pixel noise gives about the same as the model-based one, while a smooth misfit
 that pulls the parameters one way on one side of the object and another way elsewhere widens it (what the parameters
-absorb alike everywhere leaves no trace in the residuals, and no estimate from them can show it). A channel is
+absorb alike everywhere leaves no trace in the residuals, and no estimate from them can show it). That part needs a
+statement of the renderer's accuracy: ``model_error`` is the relative brightness error the render method may have
+against the real light transport, per channel and alike over the image (a model discrepancy, Kennedy and O'Hagan
+2001). Its effect on the estimates, ``(J^T J)^-1 J^T d_c`` per unit error in channel ``c`` (``d_c`` the model's
+image in residual units on that channel's rows), enters the covariance with variance ``model_error^2``. It is 0 by
+default (fitting the renderer's own images); for a photograph or a path-traced image, the renderer's measured
+accuracy is the honest value (``docs/path_tracer.md``: summed radiance within 2-3% of Mitsuba on the validated
+scenes, :data:`RENDER_MODEL_ERROR`). A channel is
 **identifiable** when both coefficients have relative standard errors at most :data:`REL_STDERR_LIMIT` and their
 correlation is at most :data:`fitting.CORRELATION_LIMIT`, and the fitted ``l_d`` spans at least
 :data:`RESOLVED_LD_PIXELS` pixels on the object in the finest view (:func:`pixel_footprint`); otherwise the result's
@@ -51,13 +58,19 @@ from jaxsss._config import compile_bound_options
 from fitting.result import CORRELATION_LIMIT
 from fitting.solvers import resolve_solver
 
-__all__ = ["LD_CANDIDATES_MM", "RD_CANDIDATES", "REL_STDERR_LIMIT", "ImageFit", "fit_image"]
+__all__ = ["LD_CANDIDATES_MM", "RD_CANDIDATES", "REL_STDERR_LIMIT", "RENDER_MODEL_ERROR", "ImageFit",
+           "fit_image"]
 
 RD_CANDIDATES = (0.2, 0.5, 0.8, 0.95)
 LD_CANDIDATES_MM = (0.3, 1.0, 3.0, 10.0)
 """The start grid: 16 (Rd, l_d) pairs per channel, each a full image evaluation on the fit's pixels."""
 REL_STDERR_LIMIT = 0.3
 """A coefficient whose relative standard error exceeds this is reported as not constrained by the views."""
+RENDER_MODEL_ERROR = 0.03
+"""The renderer's relative brightness error against real light transport, to pass as ``fit_image(model_error=...)``
+for a target the renderer did not make: the default BSSRDF's summed radiance is within 2-3% of Mitsuba's volumetric
+path tracer on the validated scenes (skin1 sphere under a point light +2.1 to +2.6%, under skies -2.1 to +1.7%,
+marble teapot +0.2 to +2.7%; docs/path_tracer.md), and the per-pixel bias on the lit side is 1-3%."""
 RESOLVED_LD_PIXELS = 2.0
 """The fitted ``l_d`` must span at least this many pixels on the object (:func:`pixel_footprint`, the finest view)
 for ``sigma_a`` and ``sigma_s'`` to be reported apart: a blur narrower than two pixels is not resolved, and the split
@@ -241,10 +254,12 @@ FD_STEP = 1e-5
 """Central-difference step in ``log sigma`` for the Jacobian behind the standard errors (relative error ~1e-10)."""
 
 
-def _uncertainty(theta, residuals, args, n_res: int, absolute: bool, blocks: np.ndarray):
+def _uncertainty(theta, residuals, args, n_res: int, absolute: bool, blocks: np.ndarray,
+                 model: np.ndarray | None = None, model_error: float = 0.0):
     """Standard errors and ``(Rd, l_d)`` at the solution (module docstring). The Jacobian is taken by central
     differences of the already compiled ``residuals`` (2 p evaluations): ``jax.jacfwd`` gives the same to 1e-10 but
-    costs a compilation of its own, longer than the whole fit on small images."""
+    costs a compilation of its own, longer than the whole fit on small images. ``model``: ``(m,)`` the model image in
+    residual units (``model * weight`` on the fitted rows, else 0), for the ``model_error`` term."""
     res = np.asarray(residuals(theta, args))
     steps = FD_STEP * np.eye(theta.shape[0])
     jac = np.stack([(np.asarray(residuals(theta + h, args)) - np.asarray(residuals(theta - h, args))) / (2 * FD_STEP)
@@ -265,6 +280,12 @@ def _uncertainty(theta, residuals, args, n_res: int, absolute: bool, blocks: np.
         cov = cov * np.outer(scale, scale)
     else:
         scale = np.full(p, np.nan)
+    if model_error > 0.0 and model is not None:
+        # Model discrepancy: a uniform relative error e_c in channel c moves theta by -(J^T J)^+ J^T d_c e_c.
+        d = np.zeros((len(model), c))
+        d[np.arange(len(model)), np.arange(len(model)) % c] = model
+        shift = bread @ (jac.T @ d)  # (p, C): d theta per unit relative error of each channel
+        cov = cov + model_error**2 * shift @ shift.T
     se_log = np.sqrt(np.maximum(np.diag(cov), 0.0))
     corr = cov[np.arange(c), c + np.arange(c)] / np.maximum(se_log[:c] * se_log[c:], 1e-300)
 
@@ -363,7 +384,8 @@ def _identifiability(se_log, corr, rd, se_rd, ld=None, footprint=None):
 
 def fit_image(scene, target_image, *, method: str = "hierarchical", max_pixels: int | None = 4096,
               target_stderr=None, solver: str = "levenberg_marquardt", rtol: float = 1e-8, atol: float = 1e-8,
-              max_steps: int = 100, seed: int = 0, progress: bool = False, **options) -> ImageFit:
+              max_steps: int = 100, seed: int = 0, progress: bool = False, model_error: float = 0.0,
+              **options) -> ImageFit:
     """Fit ``sigma_a`` and ``sigma_s'`` (per channel) of the scene's material to ``target_image``.
 
     Args:
@@ -387,6 +409,9 @@ def fit_image(scene, target_image, *, method: str = "hierarchical", max_pixels: 
             units of its standard errors, so ``atol = 1e-8`` is far below any meaningful change; at ``1e-10`` a
             converged fit went on for 5-13 more steps of rounding noise (14-23 steps instead of 9 in ``jaxsss run``).
         seed: pixel-subset seed.
+        model_error: the render method's relative brightness error against the real light transport, per channel
+            (module docstring), added to the covariance; 0 (default) for the renderer's own images,
+            :data:`RENDER_MODEL_ERROR` for a photograph or a path-traced image. In ``[0, 1)``.
 
     Returns:
         An :class:`ImageFit`; check ``converged``, ``identifiable`` and ``warnings``.
@@ -394,6 +419,8 @@ def fit_image(scene, target_image, *, method: str = "hierarchical", max_pixels: 
     from jaxsss.render import prepare_method, resolve_method
 
     scenes, targets, stderrs = _as_views(scene, target_image, target_stderr)
+    if not (np.isfinite(model_error) and 0.0 <= model_error < 1.0):
+        raise ValueError(f"fit_image(model_error={model_error}) is outside the allowed range [0, 1) (a relative error)")
     entry = resolve_method(method)
     mediums = [entry.params(s) for s in scenes]
     eta, g, fresnel = mediums[0].eta, mediums[0].g, mediums[0].fresnel
@@ -447,8 +474,13 @@ def fit_image(scene, target_image, *, method: str = "hierarchical", max_pixels: 
     res = residuals(theta, (tuple(relative), eta, g, fresnel))
     rms = jnp.sqrt(jnp.sum(res**2) / float(n_pixels * n_channels))
     t0 = time.perf_counter()
+    # The model image in residual units: the weighted residual plus the weighted target (fitted rows only).
+    model = np.asarray(residuals(theta, args)) + np.concatenate(
+        [np.where(np.asarray(mask)[..., None], np.asarray(target) * np.asarray(weight), 0.0).reshape(-1)
+         for _, target, weight, mask in views])
     se_log, corr, rd_ld, se_rd_ld, coupling, inflation, n_blocks = _uncertainty(
-        theta, residuals, args, n_pixels * n_channels, target_stderr is not None, _blocks(views, n_channels))
+        theta, residuals, args, n_pixels * n_channels, target_stderr is not None, _blocks(views, n_channels),
+        model, model_error)
     seconds["stderr"] = time.perf_counter() - t0
     c = n_channels
     ok, warnings = _identifiability(se_log, corr, rd_ld[:c], se_rd_ld[:c], rd_ld[c:],

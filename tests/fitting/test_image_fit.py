@@ -115,6 +115,9 @@ def test_bad_views_are_named(two_views):
         fit_image([scenes[0], other], [targets[0], targets[0]])
     with pytest.raises(ValueError, match="target_stderr"):
         fit_image(scenes[0], targets[0], target_stderr=np.zeros_like(targets[0]))
+    for bad in (-0.01, 1.0, float("nan")):
+        with pytest.raises(ValueError, match=r"model_error=.*\[0, 1\)"):
+            fit_image(scenes[0], targets[0], model_error=bad)
 
 
 def test_per_channel_jacobian_equals_the_full_one(two_views):
@@ -211,3 +214,31 @@ def test_a_smooth_model_error_widens_the_standard_errors():
     # can show (docs/benchmarks.md, "fit_image from path-traced images").
     assert np.all(inflation > 2.5), inflation
     assert fit.to_dict()["stderr_inflation"] == pytest.approx(inflation.tolist())
+
+
+def test_a_uniform_brightness_error_is_covered_by_the_stated_model_error():
+    """A target 3% brighter than the model everywhere (1% pixel noise): the parameters absorb it alike over the image,
+    so neither the residuals nor the blocks can show it, and the fit lands many of its standard errors from the truth.
+    Stating the renderer's accuracy, ``model_error=0.03`` (what RENDER_MODEL_ERROR says of the white kernels against
+    Mitsuba), adds that error's effect on the estimates and covers the truth; ``Rd``, which the brightness sets, gets
+    about 3% of its own."""
+    from fitting.image_fit import RENDER_MODEL_ERROR
+
+    scene = _view({"type": "point", "position": [-20.0, 5.0, 10.0], "intensity": 300.0})
+    clean = np.asarray(prepare(scene, cutoff=False, share_channels=False, bssrdf="dipole")[0].image(
+        scene.material.medium))
+    stderr = np.where(clean > 0, 0.01 * clean + 1e-12, 1.0)
+    noisy = 1.03 * clean + stderr * np.random.default_rng(5).standard_normal(clean.shape)
+    target = np.where(clean > 0, np.clip(noisy, 0.0, None), 0.0)
+    plain = fit_image(scene, target, target_stderr=stderr, max_pixels=None, bssrdf="dipole")
+    stated = fit_image(scene, target, target_stderr=stderr, max_pixels=None, bssrdf="dipole",
+                       model_error=RENDER_MODEL_ERROR)
+    assert plain.converged and stated.converged
+    np.testing.assert_allclose(np.asarray(stated.sigma_a), np.asarray(plain.sigma_a), rtol=1e-10)  # same estimate
+    est = np.array([float(plain.sigma_a[0]), float(plain.sigma_s_prime[0])])
+    se_plain = np.array([float(plain.sigma_a_stderr[0]), float(plain.sigma_s_prime_stderr[0])])
+    se_stated = np.array([float(stated.sigma_a_stderr[0]), float(stated.sigma_s_prime_stderr[0])])
+    assert np.any(np.abs(est - TRUTH) > 3 * se_plain), (est, se_plain)  # the premise
+    assert np.all(np.abs(est - TRUTH) < 2 * se_stated), (est, se_stated)
+    rd = float(stated.rd[0])
+    assert 0.02 * rd < float(stated.rd_stderr[0]) < 0.05 * rd, (float(stated.rd_stderr[0]), rd)
