@@ -59,7 +59,8 @@ def pair_blocks(values: np.ndarray, fill: int, block: int) -> np.ndarray:
 
 def split_near(inter, q_pos, tree, sorted_pos, rho0, chunk: int = 1 << 22):
     """Split an interaction list into far pairs (summed point by point) and near (query, sample) pairs closer than
-    ``rho0`` (the near list's radius: the near-field radius plus any shift of the kernel). Returns ``(far_mask, near_query, near_sample, nodes_inside)`` where ``nodes_inside``
+    ``rho0`` (the near list's radius: the near-field radius plus any shift of the kernel). Returns ``(far_mask,
+    near_query, near_sample, nodes_inside)`` where ``nodes_inside``
     counts accepted octree nodes whose centroid lies within ``rho0`` (0 unless eps is very large: a node there
     subtends a solid angle far above any sensible eps)."""
     n = tree.n_samples
