@@ -255,11 +255,12 @@ FD_STEP = 1e-5
 
 
 def _uncertainty(theta, residuals, args, n_res: int, absolute: bool, blocks: np.ndarray,
-                 model: np.ndarray | None = None, model_error: float = 0.0):
+                 weighted_target: np.ndarray | None = None, model_error: float = 0.0):
     """Standard errors and ``(Rd, l_d)`` at the solution (module docstring). The Jacobian is taken by central
     differences of the already compiled ``residuals`` (2 p evaluations): ``jax.jacfwd`` gives the same to 1e-10 but
-    costs a compilation of its own, longer than the whole fit on small images. ``model``: ``(m,)`` the model image in
-    residual units (``model * weight`` on the fitted rows, else 0), for the ``model_error`` term."""
+    costs a compilation of its own, longer than the whole fit on small images. ``weighted_target``: ``(m,)`` the
+    target times its weight on the fitted rows (else 0), from which the ``model_error`` term takes the model image in
+    residual units (the residual plus it)."""
     res = np.asarray(residuals(theta, args))
     steps = FD_STEP * np.eye(theta.shape[0])
     jac = np.stack([(np.asarray(residuals(theta + h, args)) - np.asarray(residuals(theta - h, args))) / (2 * FD_STEP)
@@ -280,8 +281,9 @@ def _uncertainty(theta, residuals, args, n_res: int, absolute: bool, blocks: np.
         cov = cov * np.outer(scale, scale)
     else:
         scale = np.full(p, np.nan)
-    if model_error > 0.0 and model is not None:
+    if model_error > 0.0 and weighted_target is not None:
         # Model discrepancy: a uniform relative error e_c in channel c moves theta by -(J^T J)^+ J^T d_c e_c.
+        model = res + weighted_target  # the model image in residual units
         d = np.zeros((len(model), c))
         d[np.arange(len(model)), np.arange(len(model)) % c] = model
         shift = bread @ (jac.T @ d)  # (p, C): d theta per unit relative error of each channel
@@ -474,13 +476,13 @@ def fit_image(scene, target_image, *, method: str = "hierarchical", max_pixels: 
     res = residuals(theta, (tuple(relative), eta, g, fresnel))
     rms = jnp.sqrt(jnp.sum(res**2) / float(n_pixels * n_channels))
     t0 = time.perf_counter()
-    # The model image in residual units: the weighted residual plus the weighted target (fitted rows only).
-    model = np.asarray(residuals(theta, args)) + np.concatenate(
+    # The weighted target on the fitted rows: with the residual, the model image in residual units.
+    weighted_target = np.concatenate(
         [np.where(np.asarray(mask)[..., None], np.asarray(target) * np.asarray(weight), 0.0).reshape(-1)
-         for _, target, weight, mask in views])
+         for _, target, weight, mask in views]) if model_error > 0.0 else None
     se_log, corr, rd_ld, se_rd_ld, coupling, inflation, n_blocks = _uncertainty(
         theta, residuals, args, n_pixels * n_channels, target_stderr is not None, _blocks(views, n_channels),
-        model, model_error)
+        weighted_target, model_error)
     seconds["stderr"] = time.perf_counter() - t0
     c = n_channels
     ok, warnings = _identifiability(se_log, corr, rd_ld[:c], se_rd_ld[:c], rd_ld[c:],

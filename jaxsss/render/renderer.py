@@ -229,7 +229,7 @@ def assemble_prepared(scene, plan: ScenePlan, samples, tree, shading: ShadingPoi
         mirror=reflect,
         bssrdf_tables=tables,
         light_tangent=tangent,
-        light_chord=opt(None if samples.chord is None or plan.bssrdf == "dipole" else samples.chord[order]),
+        light_chord=opt(None if samples.chord is None else samples.chord[order]),  # traced for white kernels only
         ent_normal=ent_normal,
         bssrdf=plan.bssrdf,
         bssrdf_mus=tuple(mus),
