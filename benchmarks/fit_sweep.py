@@ -79,6 +79,7 @@ def mc_precise(case) -> bool:
 def _draw_case(rng, model: str, materials):
     import fitting
     import jaxsss
+    from jaxsss.mc.white_family import white_family_profile
 
     name, sa0, ss0 = materials[rng.integers(len(materials))]
     sa = sa0 * np.exp(rng.uniform(np.log(0.3), np.log(3.0), 3))
@@ -99,7 +100,7 @@ def _draw_case(rng, model: str, materials):
         R, _ = jaxsss.multipole_profile(r[:, None], med, kw["thickness"], n_pairs=n)
         R = np.asarray(fitting.entry_transmittance(eta) * R)
     elif model == "mc":
-        R = np.asarray(fitting.models.mc_R(r[:, None], sa, ss, (MC_G, MC_ETA)))
+        R = np.asarray(white_family_profile(r[:, None], sa, ss, MC_G, MC_ETA))
     else:
         R = np.asarray(fitting.entry_transmittance(eta) * jaxsss.dipole_profile(r[:, None], med))
     noise = 0.0 if rng.random() < 1 / 3 else float(np.exp(rng.uniform(np.log(0.003), np.log(0.03))))

@@ -26,7 +26,7 @@ Other models register themselves with :func:`register_model`. This module import
 
 from __future__ import annotations
 
-from functools import lru_cache, partial
+from functools import lru_cache
 from typing import Callable, NamedTuple
 
 import jax
@@ -75,6 +75,11 @@ class ForwardModel(NamedTuple):
             (the ``mc`` family: ~0.5-3% per annulus far out); fits add valley scans and their starts, take the
             covariance from a secant Jacobian, and report relative far-field fits as not identifiable
             (``fitting._kernel.with_valley``, :data:`ROUGH_RELATIVE_R_MIN_LD`).
+        operands: host-side ``operands(static) -> (key, arrays)`` for a static setting that is data rather than code,
+            or ``None``. The compiled fit then takes ``arrays`` (a pytree) as runtime arguments and is cached under
+            the hashable ``key``; inside it, ``evaluate`` receives ``arrays`` as its ``static``. One compilation then
+            serves every setting of one ``key`` (the ``mc`` model: every ``(g, n)``; ~20 s of compilation each on
+            this machine). ``evaluate`` must accept both forms (the host evaluates fitted profiles with ``static``).
     """
 
     name: str
@@ -94,6 +99,7 @@ class ForwardModel(NamedTuple):
     r_max_ld: float | None = None  # the model is valid up to r_max_ld * l_d (default r_max at the start; warned past)
     noise: Callable | None = None
     rough: bool = False
+    operands: Callable | None = None
 
 
 def _dipole(r, medium, thickness, static):
@@ -228,28 +234,29 @@ def _mc_configure(owner, eta, g):
     return float(g), float(etas[0])
 
 
-@partial(jax.custom_jvp, nondiff_argnums=(3,))
-def mc_R(r, sigma_a, sigma_s_prime, static):
-    """:func:`jaxsss.mc.white_family.white_family_profile` at ``static = (g, n)``, per incident photon.
+@jax.custom_jvp
+def mc_R(r, sigma_a, sigma_s_prime, block):
+    """:func:`jaxsss.mc.white_family.white_family_block_profile`, per incident photon; ``block`` is
+    :func:`jaxsss.mc.white_family.block_operands` of the fit's ``(g, n)`` (arrays: a runtime argument of the fit).
 
     Its JVP rule forms the ``(N, 2)`` Jacobian in ``(sigma_a, sigma_s')`` once with :func:`jax.jacfwd` and applies it
     to the tangents. The result is the same derivative, but the solver's linearisation, its materialised Jacobian and
     its transposition then see a matrix product instead of the table's spline and node correction: the compiled fit
-    is about half the size (compile time is what a single fit costs)."""
-    from jaxsss.mc.white_family import white_family_profile
+    is about half the size (compile time is what a single fit costs). ``block`` is not differentiated (its tangent
+    is dropped: ``g`` and ``n`` are fixed in these fits; :mod:`fitting.g_fit` frees ``g`` on the whole grid)."""
+    from jaxsss.mc.white_family import white_family_block_profile
 
-    return white_family_profile(r, sigma_a, sigma_s_prime, *static, _mc_family())
+    return white_family_block_profile(r, sigma_a, sigma_s_prime, block)
 
 
-def _mc_R_jvp(static, primals, tangents):
-    from jaxsss.mc.white_family import white_family_profile
+def _mc_R_jvp(primals, tangents):
+    from jaxsss.mc.white_family import white_family_block_profile
 
-    r, sa, ss = primals
-    tr, tsa, tss = tangents
-    fam = _mc_family()
+    r, sa, ss, block = primals
+    tr, tsa, tss, _ = tangents
 
     def f(p):
-        y = white_family_profile(r, p[0], p[1], *static, fam)
+        y = white_family_block_profile(r, p[0], p[1], block)
         return y, y
 
     p = jnp.stack(jnp.broadcast_arrays(sa, ss))
@@ -260,12 +267,20 @@ def _mc_R_jvp(static, primals, tangents):
         out = out + jac[..., 0] * tsa
     if not isinstance(tss, zero):
         out = out + jac[..., 1] * tss
-    if not isinstance(tr, jax.custom_derivatives.SymbolicZero):
-        out = out + jax.jvp(lambda rr: white_family_profile(rr, sa, ss, *static, fam), (r,), (tr,))[1]
+    if not isinstance(tr, zero):
+        out = out + jax.jvp(lambda rr: white_family_block_profile(rr, sa, ss, block), (r,), (tr,))[1]
     return val, out
 
 
 mc_R.defjvp(_mc_R_jvp, symbolic_zeros=True)
+
+
+def _mc_operands(static):
+    """``(g, n)`` -> the compile key and :func:`jaxsss.mc.white_family.block_operands` (see
+    :attr:`ForwardModel.operands`)."""
+    from jaxsss.mc.white_family import STENCIL, block_operands
+
+    return ("white family block", STENCIL), block_operands(*static, _mc_family())
 
 
 def mc_R_stderr(r, sigma_a, sigma_s_prime, static):
@@ -276,8 +291,11 @@ def mc_R_stderr(r, sigma_a, sigma_s_prime, static):
 
 
 def _mc(r, medium, thickness, static):
+    # ``static``: (g, n) on the host, or its block operands inside a compiled fit (ForwardModel.operands).
+    on_host = isinstance(static, tuple) and all(isinstance(x, (int, float)) for x in static)
+    block = _mc_operands(static)[1] if on_host else static
     # Per incident photon already (specular excluded): no entry transmittance here, unlike the diffusion models.
-    return {"R": mc_R(r, medium.sigma_a, medium.sigma_s_prime, static)}
+    return {"R": mc_R(r, medium.sigma_a, medium.sigma_s_prime, block)}
 
 
 register_model(
@@ -296,6 +314,7 @@ register_model(
         r_max_ld=MC_R_MAX_LD,
         noise=mc_R_stderr,
         rough=True,
+        operands=_mc_operands,
     )
 )
 

@@ -179,15 +179,36 @@ def _mesh(n_problems):
 _STAGES = {"fit": K.fit, "starts": K.starts, "solve": K.solve_starts, "valley": K.valley_starts, "finish": K.finish}
 
 
+def _split(cfg: K.Config):
+    """``(compile key, operand leaves)``: a model's static setting that is data (:attr:`ForwardModel.operands`, the
+    ``mc`` model's table block for its ``(g, n)``) leaves the configuration that keys the compiled programs and
+    becomes a runtime argument, so one compilation serves every value. The key keeps the model's own key and the
+    operands' tree structure; other configurations pass through with no operands."""
+    model = resolve_model(cfg.model)
+    if model.operands is None or cfg.static is None:
+        return cfg, ()
+    key, ops = model.operands(cfg.static)
+    leaves, tree = jax.tree_util.tree_flatten(ops)
+    return cfg._replace(static=("operands", key, tree)), tuple(leaves)
+
+
+def _bind(cfg: K.Config, leaves) -> K.Config:
+    """The configuration a traced stage sees: :func:`_split`'s key with the (traced) operands back in ``static``."""
+    if not (isinstance(cfg.static, tuple) and cfg.static and cfg.static[0] == "operands"):
+        return cfg
+    return cfg._replace(static=jax.tree_util.tree_unflatten(cfg.static[2], leaves))
+
+
 @lru_cache(maxsize=64)
 def _compiled(stage: str, cfg: K.Config, options: bool = True):
-    """The jitted, vmapped stage (``r`` shared, every other argument per problem). Sharding needs no code of its
-    own: :func:`_run` places the problem axis of the inputs over a device mesh and jit's SPMD partitioner splits the
-    computation accordingly. Compiled with :func:`jaxsss._config.compile_bound_options`; ``options=False`` for
-    :mod:`jax.export`, which refuses a jit that carries compiler options (the exported call carries them instead)."""
+    """The jitted, vmapped stage (``r`` and the model's operands shared, every other argument per problem); ``cfg``
+    is :func:`_split`'s key. Sharding needs no code of its own: :func:`_run` places the problem axis of the inputs
+    over a device mesh and jit's SPMD partitioner splits the computation accordingly. Compiled with
+    :func:`jaxsss._config.compile_bound_options`; ``options=False`` for :mod:`jax.export`, which refuses a jit that
+    carries compiler options (the exported call carries them instead)."""
     fn = _STAGES[stage]
-    return jax.jit(lambda r, *per_problem: jax.vmap(lambda *a: fn(*_order(stage, r, a), cfg))(*per_problem),
-                   compiler_options=compile_bound_options() if options else None)
+    return jax.jit(lambda r, ops, *per_problem: jax.vmap(lambda *a: fn(*_order(stage, r, a), _bind(cfg, ops)))(
+        *per_problem), compiler_options=compile_bound_options() if options else None)
 
 
 def _order(stage, r, a):
@@ -236,11 +257,12 @@ def _run(stage, cfg, shard, r, *per_problem):
         r = jax.device_put(r, NamedSharding(mesh, P()))
         per_problem = jax.tree_util.tree_map(lambda x: jax.device_put(x, NamedSharding(mesh, P("batch"))),
                                              per_problem)
+    key, ops = _split(cfg)
     with trusted_traces():  # inputs validated on the host: no host callbacks, so the persistent cache can store it
         if stage == "fit" and mesh is None:
-            out = _exported_fit(cfg, r, per_problem)
+            out = _exported_fit(key, r, ops, per_problem)
         else:
-            out = _compiled(stage, cfg)(r, *per_problem)
+            out = _compiled(stage, key)(r, ops, *per_problem)
     return jax.tree_util.tree_map(lambda x: np.asarray(x)[:P_], out)  # drop the padding
 
 
@@ -275,7 +297,7 @@ def _export_dir():
 _EXPORTED = {}
 
 
-def _exported_fit(cfg, r, per_problem):
+def _exported_fit(cfg, r, ops, per_problem):
     """The fused fit through :mod:`jax.export`: the traced and lowered program is serialised next to the compilation
     cache (keyed by the configuration, the shapes and :func:`_source_digest`), so that a new process skips tracing
     and lowering (~1 s of a warm first fit on this machine) and the compilation cache serves the rest. The status
@@ -290,12 +312,12 @@ def _exported_fit(cfg, r, per_problem):
     # Only the shipped models: the digest covers jaxsss and fitting, not a user's registered model's own code.
     own = resolve_model(cfg.model).evaluate.__module__.split(".")[0] in ("fitting", "jaxsss")
     if directory is None or not own or importlib.util.find_spec("flatbuffers") is None:  # export needs flatbuffers
-        return _compiled("fit", cfg)(r, *per_problem)
-    shapes = [(np.shape(x), str(np.asarray(x).dtype)) for x in (r, *per_problem)]
+        return _compiled("fit", cfg)(r, ops, *per_problem)
+    shapes = [(np.shape(x), str(np.asarray(x).dtype)) for x in (r, *ops, *per_problem)]
     key = hashlib.sha256(repr((cfg, shapes)).encode()).hexdigest()[:24]
     exp = _EXPORTED.get(key)
     if exp is False:
-        return _compiled("fit", cfg)(r, *per_problem)
+        return _compiled("fit", cfg)(r, ops, *per_problem)
     if exp is None:
         path = directory / f"fit-{key}.bin"
         if path.exists():
@@ -306,15 +328,15 @@ def _exported_fit(cfg, r, per_problem):
         if exp is None:
             fn = _compiled("fit", cfg, False)
 
-            def plain(r, *a):
-                out, *rest = fn(r, *a)
+            def plain(r, ops, *a):
+                out, *rest = fn(r, ops, *a)
                 return ({**out, "result": out["result"]._value}, *rest)
 
             try:
-                exp = jax.export.export(jax.jit(plain))(r, *per_problem)
+                exp = jax.export.export(jax.jit(plain))(r, ops, *per_problem)
             except ValueError:  # e.g. a solver whose custom calls have no compatibility guarantee: not exportable
                 _EXPORTED[key] = False
-                return _compiled("fit", cfg)(r, *per_problem)
+                return _compiled("fit", cfg)(r, ops, *per_problem)
             try:
                 tmp = path.with_suffix(f".{os.getpid()}.tmp")
                 tmp.write_bytes(exp.serialize())
@@ -322,7 +344,7 @@ def _exported_fit(cfg, r, per_problem):
             except OSError:
                 pass
         exp = _EXPORTED[key] = jax.jit(exp.call, compiler_options=compile_bound_options())
-    out, *rest = exp(r, *per_problem)
+    out, *rest = exp(r, ops, *per_problem)
     out = {**out, "result": optx.RESULTS.successful.__class__(out["result"], optx.RESULTS)}
     return (out, *rest)
 
@@ -338,8 +360,11 @@ BLOCK_STEPS = 8
 
 
 @lru_cache(maxsize=16)
-def _compiled_block(cfg: K.Config):
-    def block(r, state, pidx, y, se, mask, eta, d):
+def _compiled_block(key: K.Config):
+    """The jitted slot block; ``key`` is :func:`_split`'s (the model's operands are an argument)."""
+    def block(r, ops, state, pidx, y, se, mask, eta, d):
+        cfg = _bind(key, ops)
+
         def one(st, i):
             w = K.weights(y[i], se[i], cfg)[0]
             return K.lm_block(st, (r, y[i], w, mask[i], eta[i], d[i], cfg), cfg, BLOCK_STEPS)
@@ -377,6 +402,7 @@ def _solve_slots(cfg, r, theta0, mask, y, se, eta, d):
     out_theta, out_steps, out_status = np.zeros((Q, p)), np.zeros(Q, np.int32), np.zeros(Q, np.int32)
     nxt = 0
     r = jnp.asarray(r)
+    key, ops = _split(cfg)
     while True:
         # Refill the free slots from the queue.
         free = np.flatnonzero(slot_q < 0)
@@ -399,7 +425,7 @@ def _solve_slots(cfg, r, theta0, mask, y, se, eta, d):
             n = m
         state = K.LMState(*(jnp.asarray(a) for a in (theta, lam, nu, steps, status, limit)))
         with trusted_traces():
-            state = _compiled_block(cfg)(r, state, jnp.asarray(np.maximum(slot_q, 0) // S), y, se, mask, eta, d)
+            state = _compiled_block(key)(r, ops, state, jnp.asarray(np.maximum(slot_q, 0) // S), y, se, mask, eta, d)
         theta, lam, nu, steps, status, limit = (np.array(x) for x in state)
         done = (status != K._RUNNING) & (slot_q >= 0)
         if np.any(done):

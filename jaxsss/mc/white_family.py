@@ -42,6 +42,7 @@ from jaxsss.validate import check_range, is_concrete
 
 __all__ = [
     "WhiteFamily",
+    "block_operands",
     "check_covered",
     "covers",
     "family_from_nodes",
@@ -49,6 +50,7 @@ __all__ = [
     "load_node",
     "load_white_family",
     "log_bin_profile",
+    "white_family_block_profile",
     "white_family_profile",
     "white_family_profile_stderr",
 ]
@@ -494,7 +496,11 @@ _BLOCKS: dict = {}
 
 def _block(fam: WhiteFamily, g: float, n: float):
     """For concrete scalar ``(g, n)``: the ``STENCIL x STENCIL`` block of nodes that holds every non-zero weight, as
-    a sub-family, and the full family's weights on it -- the same result as the whole grid, at 16 of its nodes."""
+    a sub-family, and the full family's weights on it -- the same result as the whole grid, at 16 of its nodes.
+
+    The block's node tuples are empty (the weights carry its position in the grid), so every block has one pytree
+    structure: a program that takes ``(wg, wn, block)`` as arguments compiles once for every ``(g, n)`` (a fit's
+    compiled program, :func:`block_operands`; the kernels here, which ``filter_jit`` traces per structure)."""
     out = []
     for x, nodes in ((g, fam.g_nodes), (n, fam.n_nodes)):
         w = np.asarray(_hermite_weights(jnp.asarray(x, jnp.float64), nodes))
@@ -508,9 +514,26 @@ def _block(fam: WhiteFamily, g: float, n: float):
         sl = (slice(ig, ig + kg), slice(in_, in_ + kn))
         _BLOCKS[key] = (fam, WhiteFamily(
             r_edges=fam.r_edges, pathlength_edges=fam.pathlength_edges, R=fam.R[sl], D=fam.D[sl], E=fam.E[sl],
-            valid=fam.valid[sl], tail_weight=fam.tail_weight[sl], n_simulated=fam.n_simulated,
-            g_nodes=fam.g_nodes[ig:ig + kg], n_nodes=fam.n_nodes[in_:in_ + kn]))
+            valid=fam.valid[sl], tail_weight=fam.tail_weight[sl], n_simulated=fam.n_simulated, g_nodes=(),
+            n_nodes=()))
     return _BLOCKS[key][1], jnp.asarray(wg), jnp.asarray(wn)
+
+
+def block_operands(g: float, n: float, family: WhiteFamily | None = None):
+    """``(wg, wn, block)`` for a concrete scalar ``(g, n)`` inside the grid: the Hermite weights ``(STENCIL,)`` in
+    ``g`` and in ``n`` and the block of nodes they fall on (:func:`_block`). Arrays only, of one structure and shape
+    for every ``(g, n)``: pass them to :func:`white_family_block_profile` as runtime arguments of a compiled program,
+    and one compilation serves every ``(g, n)`` (the fitting layer's ``mc`` model)."""
+    fam = load_white_family() if family is None else family
+    check_covered(g, n, owner="block_operands")
+    with jax.ensure_compile_time_eval():  # concrete even when called inside a trace (the host's (g, n))
+        sub, wg, wn = _block(fam, float(g), float(n))
+    return wg, wn, sub
+
+
+def white_family_block_profile(r, sigma_a, sigma_s_prime, operands):
+    """:func:`white_family_profile` from :func:`block_operands` (traceable; no argument checks: the caller's)."""
+    return _family_kernel(r, sigma_a, sigma_s_prime, *operands)
 
 
 @eqx.filter_jit

@@ -2,7 +2,8 @@
 of a Monte Carlo simulated measurement, and the errors for (g, eta) outside the white-MC family.
 
 Every fit here is at one off-grid (g, n) = (0.5, 1.35) of the family (between its nodes on both axes) and at most four
-problems, so they share one compilation (the white-MC model is a large graph)."""
+problems, so they share one compilation (the white-MC model is a large graph); one test checks that another (g, n)
+shares it too."""
 
 import numpy as np
 import pytest
@@ -28,6 +29,23 @@ def test_noise_free_profile_recovered_to_1e6(noise_free_fit):
     fit, sa, ss = noise_free_fit
     assert fit.converged.all()
     # 1e-6 (the brief's target): the profile is the model itself, so only the solver's tolerance (1e-10) remains.
+    np.testing.assert_allclose(fit.sigma_a, sa, rtol=1e-6)
+    np.testing.assert_allclose(fit.sigma_s_prime, ss, rtol=1e-6)
+
+
+def test_another_g_and_eta_reuse_the_compiled_fit(noise_free_fit):
+    """The table block of ``(g, n)`` is a runtime argument of the compiled fit (``ForwardModel.operands``): a fit at
+    another ``(g, n)`` with the same shapes traces nothing (each compilation costs ~20 s on this machine) and recovers
+    its own truth."""
+    from fitting import _kernel
+
+    fit0, sa, ss = noise_free_fit
+    g, n = 0.85, 1.47  # another block of nodes on both axes
+    R = np.asarray(white_family_profile(R_GRID[:, None], sa, ss, g, n))
+    before = dict(_kernel.TRACES)
+    fit = fitting.fit_profile(R_GRID, R, eta=n, model="mc", g=g)
+    assert _kernel.TRACES == before
+    assert fit.static == (g, n) and fit.converged.all()
     np.testing.assert_allclose(fit.sigma_a, sa, rtol=1e-6)
     np.testing.assert_allclose(fit.sigma_s_prime, ss, rtol=1e-6)
 

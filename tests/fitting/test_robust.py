@@ -12,6 +12,7 @@ import fitting
 import jaxsss
 from benchmarks import fit_sweep
 from fitting.result import SUSPECT_CHI2, SUSPECT_STRUCTURE
+from jaxsss.mc.white_family import white_family_profile
 
 R = np.linspace(0.1, 10.0, 100)
 ETA = 1.3
@@ -132,7 +133,7 @@ def test_chi2_check_uses_the_chi2_distribution():
 
 
 def _mc_data(sa, ss, r):
-    return np.asarray(fitting.models.mc_R(r, sa, ss, (0.9, 1.4)))
+    return np.asarray(white_family_profile(r, sa, ss, 0.9, 1.4))
 
 
 def test_mc_valley_starts_find_the_truth_behind_a_table_noise_minimum():
