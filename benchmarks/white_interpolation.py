@@ -48,7 +48,7 @@ WHITE_DIR = Path(wf.__file__).resolve().parent / "data"
 MCML_DIR = Path(__file__).resolve().parents[1] / ".." / ".." / "shared" / "reference" / "mcml"
 CONFIG = {
     "quick": {"cases": 2, "mu": (0.01, 0.1), "loo": False, "mcml": 2, "direct_photons": 20_000},
-    "full": {"cases": None, "mu": MU_PRIMES, "loo": True, "mcml": None, "direct_photons": 200_000},
+    "full": {"cases": None, "mu": MU_PRIMES, "loo": True, "mcml": None, "direct_photons": 2_000_000},
 }
 
 

@@ -67,32 +67,37 @@ def _release_compiled_programs():
         gc.collect()
 
 
-# Modules that take longest on a cold start (mostly compilation), heaviest first: `make test` runs the suite on two
-# xdist workers with `--dist loadscope --no-loadscope-reorder` (a module's tests and its module-scoped fixtures stay on
-# one worker; xdist's own reorder, by test count, put the notebooks last), and a heavy module scheduled last leaves the
-# other worker idle. Cold seconds of each module's slowest tests (2026-11-27, 2 cores, fusion emitters off).
+# Scopes (modules, or a notebook's class) that take longest on a cold start (mostly compilation), heaviest first:
+# `make test` runs the suite on two xdist workers with `--dist loadscope --no-loadscope-reorder` (a module's tests and
+# its module-scoped fixtures stay on one worker; xdist's own reorder, by test count, put the notebooks last), and a
+# heavy scope scheduled last leaves the other worker idle. Cold seconds of each scope's tests under the two-worker
+# load (`--durations=0`, 2026-11-27, 2 cores, fusion emitters off; 1269 s in all).
 HEAVY_FIRST = (
-    "tests/test_notebooks.py",  # ~150: render_and_fit (~100), fit_measured_materials (~48), reparameterisation
-    "tests/cli/test_run.py",  # ~80: the `jaxsss run` job (render, fit_image, Monte Carlo, mc fit)
-    "tests/fitting/test_robust.py",  # ~60: the randomised sweep subsets
-    "tests/fitting/test_profile_fit.py",  # ~55
-    "tests/test_benchmarks_render.py",  # ~30
-    "tests/fitting/test_mc_model.py",  # ~30
-    "tests/render/test_cache.py",  # ~30
-    "tests/fitting/test_g_fit.py",  # ~30
-    "tests/export/test_compare_bssrdf.py",  # ~28
-    "tests/fitting/test_mco_fit.py",  # ~26
-    "tests/render/test_methods.py",  # ~26
-    "tests/render/test_bssrdf.py",  # ~21
+    "tests/test_notebooks.py::TestNotebook_render_and_fit",  # 107
+    "tests/fitting/test_profile_fit.py",  # 91
+    "tests/cli/test_run.py",  # 81: the `jaxsss run` job (render, fit_image, Monte Carlo, mc fit)
+    "tests/fitting/test_robust.py",  # 76: the randomised sweep subsets
+    "tests/render/test_cache.py",  # 57
+    "tests/test_notebooks.py::TestNotebook_fit_measured_materials",  # 53
+    "tests/render/test_bssrdf.py",  # 52
+    "tests/test_benchmarks_render.py",  # 45
+    "tests/fitting/test_mc_model.py",  # 38
+    "tests/mc/test_white.py",  # 37
+    "tests/mc/test_white_family.py",  # 36
+    "tests/fitting/test_image_fit.py",  # 35
+    "tests/render/test_renderer.py",  # 31
+    "tests/fitting/test_g_fit.py",  # 31
+    "tests/fitting/test_mco_fit.py",  # 29
+    "tests/export/test_compare_bssrdf.py",  # 24
 )
 
 
 def pytest_collection_modifyitems(config, items):
-    """Run the heavy modules first (:data:`HEAVY_FIRST`), the rest in collection order."""
-    root = Path(str(config.rootpath))
+    """Run the heavy scopes first (:data:`HEAVY_FIRST`, matched as prefixes of the test ids), the rest in collection
+    order."""
 
     def rank(item):
-        rel = Path(str(item.path)).relative_to(root).as_posix() if str(item.path).startswith(str(root)) else ""
-        return HEAVY_FIRST.index(rel) if rel in HEAVY_FIRST else len(HEAVY_FIRST)
+        return next((i for i, scope in enumerate(HEAVY_FIRST) if item.nodeid.startswith(scope + "::")),
+                    len(HEAVY_FIRST))
 
     items.sort(key=rank)  # stable: collection order within a module and among the rest
