@@ -270,6 +270,8 @@ def valid_bins(table: dict, tail_cells: np.ndarray) -> int:
     total = (R * w).sum(1) + (tail_cells * wt).sum(1)
     with np.errstate(divide="ignore", invalid="ignore"):
         rel = np.where(total > 0, np.sqrt(((E * w) ** 2).sum(1)) / total, np.inf)
+    # A bin no photon reached is not measured, however small the tail's share makes its error look.
+    rel = np.where(R.sum(1) > 0, rel, np.inf)
     bad = np.nonzero(rel > 1.0 / math.sqrt(MIN_COUNTS))[0]
     bad = bad[bad > len(rel) // 2]
     keep = int(bad[0]) if bad.size else len(rel)

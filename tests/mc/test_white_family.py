@@ -162,6 +162,19 @@ def test_stderr_at_a_node_is_the_node_tables_noise(fam):
     np.testing.assert_allclose(got, expect[m], rtol=0.02)
 
 
+def test_a_bin_no_photon_reached_is_not_valid():
+    # Extreme input: a node whose far bins hold no photon, with a diffusion tail there. The tail alone made their
+    # error look small, so they counted as valid and the node was refused as having empty valid bins (a held-out run
+    # with 1.8e6 photons did this); now the valid range ends before the first empty bin.
+    t = wf.load_node(wf.FAMILY_DIR / wf.node_file(0.3, 1.3))
+    R, E = t["R"].copy(), t["R_stderr"].copy()
+    first_empty = 70
+    R[first_empty:], E[first_empty:] = 0.0, 0.0
+    t = dict(t, R=R, R_stderr=E)
+    tail = np.full((R.shape[0], len(wf.tail_edges()) - 1), 1e-3)  # a tail in every bin
+    assert wf.valid_bins(t, tail) <= first_empty
+
+
 def test_stderr_shapes_invariants_and_bad_input(fam):
     r = np.geomspace(0.1, 100.0, 30)
     sa = jnp.array([0.0, 0.01, 0.1])
