@@ -39,7 +39,7 @@ def test_another_g_and_eta_reuse_the_compiled_fit(noise_free_fit):
     its own truth."""
     from fitting import _kernel
 
-    fit0, sa, ss = noise_free_fit
+    _, sa, ss = noise_free_fit
     g, n = 0.85, 1.47  # another block of nodes on both axes
     R = np.asarray(white_family_profile(R_GRID[:, None], sa, ss, g, n))
     before = dict(_kernel.TRACES)
