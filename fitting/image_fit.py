@@ -55,6 +55,7 @@ import optimistix as optx
 
 import jaxsss
 from jaxsss._config import compile_bound_options
+from jaxsss.validate import trusted_traces
 from fitting.result import CORRELATION_LIMIT
 from fitting.solvers import resolve_solver
 
@@ -160,7 +161,10 @@ def _choose_pixels(target: np.ndarray, max_pixels: int | None, seed: int) -> np.
 
 def _medium(theta, eta, g, fresnel):
     c = theta.shape[0] // 2
-    return jaxsss.Medium(jnp.exp(theta[:c]), jnp.exp(theta[c:]), eta, g, fresnel=fresnel)
+    # exp of the log-parameters is valid by construction: no traced checks, which are host callbacks and would keep
+    # the compiled fit out of the persistent compilation cache (eta and g are host values, checked as such).
+    with trusted_traces():
+        return jaxsss.Medium(jnp.exp(theta[:c]), jnp.exp(theta[c:]), eta, g, fresnel=fresnel)
 
 
 def _stacked_residuals(theta, args):

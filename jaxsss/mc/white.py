@@ -67,6 +67,7 @@ __all__ = [
     "white_mc_medium_profile",
     "white_mc_profile",
     "white_mc_profile_stderr",
+    "white_table_profile",
 ]
 
 TABLE_DIR = Path(__file__).resolve().parent / "data"
@@ -359,6 +360,13 @@ def white_mc_profile(r, sigma_a, sigma_s_prime, table: WhiteTable):
     r = check_range(r, "r", 0.0, None, owner=owner)
     sigma_a = check_range(sigma_a, "sigma_a", 0.0, None, owner=owner)
     sigma_s_prime = check_range(sigma_s_prime, "sigma_s_prime", 0.0, None, lo_open=True, owner=owner)
+    return _white_kernel(r, sigma_a, sigma_s_prime, table)
+
+
+def white_table_profile(r, sigma_a, sigma_s_prime, table: WhiteTable):
+    """:func:`white_mc_profile` without its argument checks (traceable; the checks are the caller's). For kernels
+    whose inputs are valid by construction: a traced check is a host callback, which keeps the compiled program out
+    of JAX's persistent cache (the renderer's white kernels)."""
     return _white_kernel(r, sigma_a, sigma_s_prime, table)
 
 

@@ -192,18 +192,29 @@ def oblique_sources(g: float, n: float) -> tuple[tuple[float, float, float], ...
 class WhiteSources(eqx.Module):
     """What :func:`white_kernel` needs besides the medium: the medium's ``(g, n)``, the oblique sources
     (:func:`oblique_sources`: ``(g_j, n_j, w_j)``) and their oblique tables, ``tables[j][k]`` at the kernel's
-    ``k``-th oblique cosine (empty for the ``white`` kernel)."""
+    ``k``-th oblique cosine (empty for the ``white`` kernel), and the white family's block of nodes around each
+    ``(g, n)`` the kernel evaluates (``blocks[i]`` for ``block_keys[i]``, :func:`jaxsss.mc.white_family.block_operands`).
+
+    Tables and blocks are arrays, so a compiled image takes them as arguments: its program does not carry the tables as
+    constants (the whole family was 49 MB of HLO text), and one compilation serves every ``(g, n)`` of the same
+    structure and shapes."""
 
     tables: tuple
+    blocks: tuple
     g: float = eqx.field(static=True)
     n: float = eqx.field(static=True)
     sources: tuple = eqx.field(static=True)
+    block_keys: tuple = eqx.field(static=True)
+
+    def block(self, g: float, n: float):
+        """The family's :func:`~jaxsss.mc.white_family.block_operands` at ``(g, n)``, one of :attr:`block_keys`."""
+        return self.blocks[self.block_keys.index((g, n))]
 
 
 def white_tables(g: float, n: float, oblique: bool, mus: tuple | None = None) -> tuple[tuple[float, ...], WhiteSources] | None:
     """``(mus, sources)`` for the ``white`` (normal incidence only) or ``white-oblique`` kernel (oblique cosines
     ``mus``, default :data:`KERNEL_MUS`), or None when ``(g, n)`` is outside the white Monte Carlo family."""
-    from jaxsss.mc.white_family import covers, load_white_family
+    from jaxsss.mc.white_family import block_operands, covers, load_white_family
 
     if not covers(g, n):
         return None
@@ -211,7 +222,9 @@ def white_tables(g: float, n: float, oblique: bool, mus: tuple | None = None) ->
     obl = tuple(KERNEL_MUS if mus is None else mus) if oblique else ()
     src = oblique_sources(g, n) if obl else ()
     tables = tuple(tuple(white_table(a, b, mu) for mu in obl) for a, b, _ in src)
-    return (1.0,) + obl, WhiteSources(tables, float(g), float(n), src)
+    keys = tuple(dict.fromkeys([(float(g), float(n))] + [(float(a), float(b)) for a, b, _ in src]))
+    blocks = tuple(block_operands(a, b) for a, b in keys)
+    return (1.0,) + obl, WhiteSources(tables, blocks, float(g), float(n), src, keys)
 
 
 def _sources_text(g: float, n: float) -> str:
@@ -522,8 +535,11 @@ def white_kernel(medium: Medium, sources: WhiteSources, mus: tuple = (1.0,) + KE
 
 @eqx.filter_jit
 def _white_kernel(medium: Medium, sources: WhiteSources, mus: tuple, shift: bool) -> WhiteKernel:
-    from jaxsss.mc.white import white_mc_profile
-    from jaxsss.mc.white_family import white_family_profile
+    # The profiles' own argument checks are left out (the grid radii are positive by construction, and the medium's
+    # coefficients were checked when the Medium was built): they are host callbacks, and a program with one is never
+    # written to the persistent compilation cache.
+    from jaxsss.mc.white import white_table_profile as white_mc_profile
+    from jaxsss.mc.white_family import white_family_block_profile
 
     n_grid = round(math.log10(GRID_RHO_MAX / GRID_RHO_MIN) * GRID_PER_DECADE) + 1
     rho = GRID_RHO_MIN * 10.0 ** (np.arange(n_grid) / GRID_PER_DECADE)
@@ -540,7 +556,7 @@ def _white_kernel(medium: Medium, sources: WhiteSources, mus: tuple, shift: bool
     def family(gg, nn):
         # One evaluation per distinct (g, n) on the grid.
         if (gg, nn) not in families:
-            families[gg, nn] = _log(white_family_profile(r, sigma_a, sigma_s_prime, gg, nn))
+            families[gg, nn] = _log(white_family_block_profile(r, sigma_a, sigma_s_prime, sources.block(gg, nn)))
         return families[gg, nn]
 
     log_normal = family(g, n)
