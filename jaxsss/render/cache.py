@@ -304,8 +304,14 @@ def _transmitted_irradiance(samples, medium: Medium) -> np.ndarray:
     eta = float(np.asarray(medium.eta))
     f_t = 1.0 - np.asarray(fresnel_reflectance(eta, np.clip(samples.light.cos, 0.0, 1.0)))
     e_t = (f_t[..., None] * samples.light.irradiance).sum(axis=1).mean(axis=-1)
+    f_dt = float(np.asarray(F_dt_external(eta, medium.fresnel)))
     if samples.indirect is not None:
-        e_t = e_t + float(np.asarray(F_dt_external(eta, medium.fresnel))) * samples.indirect.mean(axis=-1)
+        e_t = e_t + f_dt * samples.indirect.mean(axis=-1)
+    if samples.self_indirect is not None:  # the object's own bounce, at the scene's material (Prepared.sample_flux)
+        from jaxsss.reflectance import medium_total_diffuse_reflectance
+
+        rho = f_dt * np.asarray(medium_total_diffuse_reflectance(medium))
+        e_t = e_t + f_dt * (rho * samples.self_indirect).mean(axis=-1)
     if samples.texture is not None:
         e_t = e_t * samples.texture.mean(axis=-1)
     return e_t

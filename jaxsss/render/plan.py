@@ -6,7 +6,9 @@ force a term ``"on"`` or ``"off"``; ``"auto"`` lets the plan decide:
 
 - **shadow rays**: left out for a convex mesh alone in the scene (a light is then blocked exactly when it is below
   the horizon, which the cosine already handles);
-- **indirect bounce**: left out for a lone object (nothing else to bounce off; self inter-reflection is not modelled);
+- **indirect bounce**: one bounce off opaque occluders, left out for a lone object;
+- **self inter-reflection**: one bounce of the light the object sends out back onto itself, left out for a convex
+  object (no ray leaving it meets it again); ``[render].indirect`` forces both bounces;
 - **BSSRDF** (when the caller asks, ``bssrdf=``; the hierarchical and direct methods do): the transport-accurate white
   Monte Carlo family's profiles with their incidence-angle dependence for ``g < 0.5`` and ``eta`` in [1, 1.6], or the
   dipole (:func:`~jaxsss.render.bssrdf.choose_bssrdf`);
@@ -62,6 +64,7 @@ class ScenePlan(NamedTuple):
     shared_channel: bool
     items: tuple[PlanItem, ...]
     bssrdf: str = "dipole"
+    self_bounce: bool = False
 
     def explain(self) -> str:
         """The plan as text, one line per decision."""
@@ -122,12 +125,19 @@ def make_plan(scene, *, method: str | None = None, eps: float | None = None, cut
                ("the mesh is not convex: it can shadow itself" if lone else "occluders can cast shadows"))
     items.append(PlanItem("shadow rays", shadows, why))
 
-    indirect, why = _forced(settings.indirect, "indirect")
+    forced_indirect, forced_why = _forced(settings.indirect, "indirect")
+    indirect, why = forced_indirect, forced_why
     if indirect is None:
         indirect = not lone
-        why = ("lone object in an empty scene: nothing to bounce off (self inter-reflection is not modelled)"
-               if lone else f"{len(scene.occluders)} occluder(s) reflect light onto the object (one bounce)")
+        why = ("lone object in an empty scene: nothing to bounce off" if lone else
+               f"{len(scene.occluders)} occluder(s) reflect light onto the object (one bounce)")
     items.append(PlanItem("indirect bounce", indirect, why))
+    self_bounce, why = forced_indirect, forced_why
+    if self_bounce is None:
+        self_bounce = not bool(scene.mesh.is_convex)
+        why = ("the mesh is not convex: light it sends out reaches it again (one bounce, local diffuse albedo "
+               "F_dt Rd)" if self_bounce else "convex mesh: no light it sends out reaches it again")
+    items.append(PlanItem("self inter-reflection", self_bounce, why))
 
     kernel = "dipole"
     if bssrdf is not None:
@@ -201,4 +211,4 @@ def make_plan(scene, *, method: str | None = None, eps: float | None = None, cut
         items.append(PlanItem("occluders", True, f"{len(scene.occluders)} opaque Lambertian object(s) shaded "
                                                  "directly"))
     return ScenePlan(method, eps, n_samples, shadows, indirect, single, specular, r_cut, shared, tuple(items),
-                     kernel)
+                     kernel, self_bounce)

@@ -73,10 +73,26 @@ class Prepared(ReflectingPoints):
     bssrdf: str = eqx.field(static=True, default="dipole")
     bssrdf_mus: tuple = eqx.field(static=True, default=(1.0,))
     bssrdf_exit: str = eqx.field(static=True, default="fresnel")
+    # (N, C) W/mm^2: the object's own lit surface seen from each sample (jaxsss.render.samples.self_irradiance), or None
+    self_indirect: jax.Array | None = None
+
+    def indirect_irradiance(self, medium: Medium):
+        """``(N, C)`` diffuse indirect irradiance at the samples, W/mm^2, or None: the occluders' bounce plus the
+        object's own, ``rho E_self`` with the surface's diffuse albedo ``rho = F_dt,ext Rd`` (Eq. 15's total diffuse
+        reflectance of the medium, entered through the boundary's hemispherical transmittance)."""
+        if self.self_indirect is None:
+            return self.indirect
+        from jaxsss.reflectance import medium_total_diffuse_reflectance
+
+        # One bounce off the object itself: its exitance is rho times the irradiance it receives (local).
+        rho = rad.F_dt_external(medium.eta, medium.fresnel) * medium_total_diffuse_reflectance(medium)
+        own = rho * self.self_indirect
+        return own if self.indirect is None else self.indirect + own
 
     def sample_flux(self, medium: Medium):
         """Flux at each sample, W: ``(N, C)`` entering the medium (dipole), or ``(N, K, C)`` incident per incidence
         node (white kernels; :func:`jaxsss.render.bssrdf.incident_flux`)."""
+        indirect = self.indirect_irradiance(medium)
         if self.bssrdf != "dipole":
             irradiance = self.light_irradiance
             if self.light_chord is not None:
@@ -84,9 +100,9 @@ class Prepared(ReflectingPoints):
                 # Uncollided passage: only the light that interacts before its chord ends enters the profile.
                 irradiance = irradiance * interaction_probability(
                     self.light_chord, medium.sigma_a + medium.sigma_s_prime / (1.0 - g))
-            return incident_flux(self.bssrdf_mus, self.areas, self.light_cos, irradiance, self.indirect,
+            return incident_flux(self.bssrdf_mus, self.areas, self.light_cos, irradiance, indirect,
                                  self.texture, self.light_tangent)
-        return rad.transmitted_flux(medium, self.areas, self.light_cos, self.light_irradiance, self.indirect,
+        return rad.transmitted_flux(medium, self.areas, self.light_cos, self.light_irradiance, indirect,
                                     self.texture)
 
     @property
@@ -168,7 +184,7 @@ def irradiance_pass(scene, plan: ScenePlan):
     octree (centroids weighted by the channel-mean direct plus indirect flux)."""
     geometry = SceneGeometry(scene.mesh, [o.mesh for o in scene.occluders])
     samples = irradiance_samples(scene, geometry, plan.n_samples, shadows=plan.shadows, indirect=plan.indirect,
-                                 seed=scene.render.seed, chords=plan.bssrdf != "dipole")
+                                 seed=scene.render.seed, chords=plan.bssrdf != "dipole", self_bounce=plan.self_bounce)
     t0 = time.perf_counter()
     weight = samples.areas * samples.light.irradiance.sum(axis=1).mean(axis=-1)
     if samples.indirect is not None:
@@ -234,6 +250,7 @@ def assemble_prepared(scene, plan: ScenePlan, samples, tree, shading: ShadingPoi
         bssrdf=plan.bssrdf,
         bssrdf_mus=tuple(mus),
         bssrdf_exit=exit_model,
+        self_indirect=opt(None if samples.self_indirect is None else samples.self_indirect[order]),
     )
 
 

@@ -13,8 +13,10 @@ random sample's, which on a uniformly lit plane gives 8-17% pixel noise at the p
 ``"stratified"`` gives 1-8% (before the near-field split of :mod:`jaxsss.render.radiance`).
 
 Each sample stores the geometry of its light (:class:`~jaxsss.render.lights.LightField`), an optional one-bounce
-indirect irradiance off opaque occluders, and an optional texture multiplier. The entry Fresnel that turns these into
-flux depends on the material and is applied in JAX (:func:`jaxsss.render.radiance.transmitted_flux`).
+indirect irradiance off opaque occluders, an optional one-bounce irradiance off the object itself (before its diffuse
+albedo, which depends on the material: :func:`self_irradiance`), and an optional texture multiplier. The entry Fresnel
+that turns these into flux depends on the material and is applied in JAX
+(:func:`jaxsss.render.radiance.transmitted_flux`).
 """
 
 from __future__ import annotations
@@ -35,6 +37,7 @@ __all__ = [
     "irradiance_samples",
     "sample_count",
     "sample_surface",
+    "self_irradiance",
     "texture_lookup",
 ]
 
@@ -52,6 +55,8 @@ class IrradianceSamples(NamedTuple):
         texture: ``(N, C)`` texture multiplier, or ``None``.
         chord: ``(N, L)`` mm, each light column's refracted path inside the object
             (:func:`jaxsss.render.passage.entry_chords`), or ``None`` (not traced).
+        self_indirect: ``(N, C)`` W/mm^2, the direct irradiance of the object's own surface seen from each sample
+            (:func:`self_irradiance`; times the surface's diffuse albedo it is the one-bounce irradiance), or ``None``.
     """
 
     positions: np.ndarray
@@ -62,6 +67,7 @@ class IrradianceSamples(NamedTuple):
     indirect: np.ndarray | None
     texture: np.ndarray | None
     chord: np.ndarray | None = None
+    self_indirect: np.ndarray | None = None
 
     @property
     def n(self) -> int:
@@ -167,35 +173,64 @@ def _cosine_directions(normals: np.ndarray, n_rays: int, rng: np.random.Generato
     return local[..., :1] * t[:, None] + local[..., 1:2] * b[:, None] + local[..., 2:] * normals[:, None]
 
 
-def indirect_irradiance(scene, geometry, points, normals, *, n_rays: int = 16, seed: int = 0) -> np.ndarray:
-    """One-bounce diffuse irradiance off the scene's opaque (Lambertian) occluders, ``(P, C)`` W/mm^2.
-
-    Cosine-weighted rays: ``E = pi * mean(L)``, with ``L = albedo / pi * E_direct(y)`` at an occluder hit ``y``.
-    Rays that hit the translucent object itself or nothing add zero (self inter-reflection is not modelled). Area and
-    environment lights are sampled with at most :data:`INDIRECT_LIGHT_SAMPLES` directions at each occluder hit (the
-    ``n_rays`` hits per point already average them).
-    """
+def _bounce(scene, geometry, points, normals, n_rays: int, seed: int, objects) -> np.ndarray:
+    """``(P, C)``: the cosine-weighted mean, over ``n_rays`` rays per point, of the direct irradiance (W/mm^2) at the
+    first hits on the objects ``objects(obj)`` selects (0 the translucent object, 1.. the occluders), times
+    ``weight(obj)`` (the hit's diffuse albedo, or 1); other rays add zero. With Lambertian reflection at the hits,
+    ``E = pi mean(L) = mean(albedo E_direct)``. Area and environment lights are sampled with at most
+    :data:`INDIRECT_LIGHT_SAMPLES` directions at each hit (the ``n_rays`` hits per point already average them)."""
     rng = np.random.default_rng(seed)
     dirs = _cosine_directions(normals, n_rays, rng).reshape(-1, 3)
     origins = np.repeat(points + geometry.offset * normals, n_rays, axis=0)
     hits = geometry.first_hit(origins, dirs)
     n_c = max(np.asarray(light.intensity).size for light in scene.lights)
-    radiance = np.zeros((len(dirs), n_c))
-    on_occ = hits.obj >= 1
-    if on_occ.any():
-        idx = np.flatnonzero(on_occ)
+    out = np.zeros((len(dirs), n_c))
+    weight = objects(hits.obj)
+    idx = np.flatnonzero(hits.hit & np.any(weight > 0, axis=-1))
+    if len(idx):
         y = hits.position[idx]
         ny = geometry.combined.face_normals[hits.face[idx]]
         ny = np.where(np.einsum("ij,ij->i", ny, dirs[idx])[:, None] > 0, -ny, ny)  # face the incoming ray
         direct = light_field(capped_samples(scene.lights, INDIRECT_LIGHT_SAMPLES), y, ny, geometry,
                              seed=seed + 1).irradiance.sum(axis=1)
-        albedo = np.stack([scene.occluders[k - 1].albedo for k in hits.obj[idx]])
-        radiance[idx] = albedo / np.pi * direct
-    return np.pi * radiance.reshape(len(points), n_rays, n_c).mean(axis=1)
+        out[idx] = weight[idx] * direct
+    return out.reshape(len(points), n_rays, n_c).mean(axis=1)
+
+
+def indirect_irradiance(scene, geometry, points, normals, *, n_rays: int = 16, seed: int = 0) -> np.ndarray:
+    """One-bounce diffuse irradiance off the scene's opaque (Lambertian) occluders, ``(P, C)`` W/mm^2.
+
+    Cosine-weighted rays: ``E = pi * mean(L)``, with ``L = albedo / pi * E_direct(y)`` at an occluder hit ``y``.
+    Rays that hit the translucent object itself (:func:`self_irradiance`) or nothing add zero.
+    """
+    n_c = max(np.asarray(light.intensity).size for light in scene.lights)
+    albedo = np.stack([np.zeros(n_c)] + [np.broadcast_to(np.asarray(o.albedo, dtype=np.float64), (n_c,))
+                                         for o in scene.occluders])
+
+    def occluders(obj):
+        return np.where((obj >= 1)[:, None], albedo[np.clip(obj, 0, len(albedo) - 1)], 0.0)
+
+    return _bounce(scene, geometry, points, normals, n_rays, seed, occluders)
+
+
+def self_irradiance(scene, geometry, points, normals, *, n_rays: int = 16, seed: int = 0) -> np.ndarray:
+    """The translucent object's own lit surface seen from points on it: ``(P, C)`` W/mm^2, the cosine-weighted mean
+    of the direct irradiance at the first hits on the object (zero for a convex object, whose surface a ray leaving it
+    never meets again).
+
+    Times the surface's diffuse albedo ``rho`` (material-dependent, applied in JAX: ``F_dt,ext Rd``,
+    :meth:`jaxsss.render.renderer.Prepared.sample_flux`) it is the one-bounce irradiance of light that leaves the
+    object and enters it again elsewhere: the lit spout and handle of a marble teapot light its shadowed body.
+    Local approximation: the exitance at a hit is ``rho`` times its own irradiance, not the profile-blurred
+    irradiance around it (right where the light varies slowly over ``l_d``; too sharp at shadow edges).
+    """
+    n_c = max(np.asarray(light.intensity).size for light in scene.lights)
+    return _bounce(scene, geometry, points, normals, n_rays, seed,
+                   lambda obj: np.where((obj == 0)[:, None], np.ones(n_c), 0.0))
 
 
 def irradiance_samples(scene, geometry, n: int, *, shadows: bool, indirect: bool, seed: int = 0,
-                       indirect_rays: int = 16, chords: bool = False) -> IrradianceSamples:
+                       indirect_rays: int = 16, chords: bool = False, self_bounce: bool = False) -> IrradianceSamples:
     """Pass 1: ``n`` samples on the translucent mesh with their direct (and optionally indirect) irradiance.
 
     Args:
@@ -206,6 +241,7 @@ def irradiance_samples(scene, geometry, n: int, *, shadows: bool, indirect: bool
         indirect: add one-bounce indirect irradiance off occluders.
         chords: trace each light column's refracted ray through the object (:mod:`jaxsss.render.passage`; the white
             kernels weight the flux by the probability of interacting along it).
+        self_bounce: trace :func:`self_irradiance` (light that leaves the object and reaches it again).
     """
     positions, face, areas = sample_surface(scene.mesh, n, seed)
     normals = geometry.shading_normals(face, positions)
@@ -222,4 +258,6 @@ def irradiance_samples(scene, geometry, n: int, *, shadows: bool, indirect: bool
         from jaxsss.render.passage import entry_chords
 
         chord = entry_chords(geometry, positions, normals, light.to_light, light.cos, float(scene.material.medium.eta))
-    return IrradianceSamples(positions, normals, areas, face, light, ind, tex, chord)
+    own = self_irradiance(scene, geometry, positions, normals, n_rays=indirect_rays, seed=seed + 3) \
+        if self_bounce else None
+    return IrradianceSamples(positions, normals, areas, face, light, ind, tex, chord, own)

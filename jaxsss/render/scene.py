@@ -75,7 +75,7 @@ Schema (units: mm, 1/mm, degrees; "3 values" means ``[x, y, z]`` or ``[r, g, b]`
     photons = 200000          # photons traced by --method photon, >= 1
     tolerance = 1e-3          # relative tolerance for leaving terms out, in [0, 1)
     single_scattering = "auto"   # auto | on | off (true / false mean on / off)
-    indirect = "auto"
+    indirect = "auto"         # auto | on | off: one bounce off the occluders and off the object itself
     shadows = "auto"
     seed = 0                  # >= 0
 

@@ -25,7 +25,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from jaxsss.export.compare import compare_images, pixel_geometry
+from jaxsss.export.compare import compare_images, error_by_cos, pixel_geometry
 from jaxsss.render import load_scene, render
 
 REFERENCES = Path(__file__).parent / "references"
@@ -53,19 +53,26 @@ def test_default_render_is_within_the_achieved_error_of_the_path_tracer(skin1):
 
 def test_marble_teapot_against_its_path_traced_reference():
     """Marble (albedo ~0.999) on the watertight teapot, eta 1, one point light; Mitsuba 16384 spp (2.2-2.5% pixel
-    noise, which is part of mare_lit here). Achieved (2026-11-24, white-oblique with the curvature ratio): mare_lit
-    0.091 / 0.086 / 0.086 (0.087 / 0.083 / 0.084 without it), terminator band 0.30 / 0.33 / 0.37 (goal 0.15: missed;
-    the band includes the spout's and handle's shadow edges), sums 1.027 / 1.015 / 1.002 (goal 3%: met). The old dipole + single scattering: mare_lit 0.22-0.23, sums
-    1.17-1.20. Bounds: the goal where met, else the achieved level plus about 10%."""
+    noise, which is part of mare_lit here). Achieved (2026-11-27, white-oblique with the curvature ratio and the
+    object's own bounce): mare_lit 0.082 / 0.071 / 0.070, terminator band 0.20 / 0.20 / 0.23 (goal 0.15: missed),
+    sums 1.048 / 1.035 / 1.021 (goal 3%: missed in R and G). Without the bounce (2026-11-24): mare_lit 0.091 / 0.087 /
+    0.087, band 0.30 / 0.34 / 0.37, sums 1.026 / 1.014 / 1.002 -- the band 19-31% too dark and the shadowed side
+    80-90% too dark, where the lit spout and body light each other in the path tracer; the sums were met only because
+    that missing light offset the main term's 2-4% excess on the lit side (docs/path_tracer.md, "The teapot's
+    terminator"). The old dipole + single scattering: mare_lit 0.22-0.23, sums 1.17-1.20. Bounds: the achieved level
+    plus about 10%, and the band's signed error within 15% (-19 to -31% without the bounce)."""
     scene = load_scene(REFERENCES / "marble_teapot.toml")
     data = np.load(REFERENCES / "marble_teapot.npz")
     ref, coverage = data["image"].astype(np.float64), data["coverage"].astype(np.float64)
     result = render(scene)
-    assert result.report["plan"]["bssrdf"] == "white-oblique"
-    m = compare_images(result.image, ref, pixel_geometry(scene), coverage=coverage)
-    assert np.all(np.array(m["mare_lit"]) <= 0.096), m["mare_lit"]
-    assert np.all(np.array(m["mare_band"]) <= 0.41), m["mare_band"]
-    assert np.all(np.abs(np.array(m["sum_ratio"]) - 1.0) <= 0.03), m["sum_ratio"]
+    assert result.report["plan"]["bssrdf"] == "white-oblique" and result.report["plan"]["self_bounce"]
+    pixels = pixel_geometry(scene)
+    m = compare_images(result.image, ref, pixels, coverage=coverage)
+    assert np.all(np.array(m["mare_lit"]) <= 0.09), m["mare_lit"]
+    assert np.all(np.array(m["mare_band"]) <= 0.26), m["mare_band"]
+    assert np.all(np.abs(np.array(m["sum_ratio"]) - 1.0) <= 0.053), m["sum_ratio"]
+    band = error_by_cos(result.image, ref, pixels, coverage=coverage, edges=np.array([-0.1, 0.1]))[0]
+    assert band["n"] > 30 and np.all(np.abs(band["bias"]) <= 0.15), band
 
 
 def test_skin1_at_its_own_eta_under_a_sky_against_its_path_traced_reference():

@@ -175,3 +175,34 @@ def test_indirect_bounce_off_a_floor_adds_light():
     m_off = np.asarray(prepare(off, resolution=(12, 12))[0].sample_flux(medium))
     assert m_on.sum() > 1.05 * m_off.sum()  # the floor lights the sphere's underside
     assert np.all(m_on >= m_off - 1e-15)
+
+
+def test_light_bounced_off_the_object_itself_enters_with_its_diffuse_albedo():
+    """A concave object (the open teapot) lights itself: pass 1 traces what each sample sees of the object's own lit
+    surface, and the material's diffuse albedo ``rho = F_dt,ext Rd`` turns that into indirect irradiance (one bounce,
+    ``Prepared.indirect_irradiance``). It is differentiable in the material, zero for a convex object, and off when
+    ``[render].indirect = "off"``."""
+    from jaxsss.reflectance import medium_total_diffuse_reflectance
+
+    teapot = {"builtin": "teapot", "size": 20.0, "resolution": 6}
+    lights = [{"type": "point", "position": [-30.0, -20.0, 30.0], "intensity": [300.0, 250.0, 200.0]}]
+    on = prepare(_scene(mesh=teapot, lights=lights), resolution=(8, 8), bssrdf="dipole")[0]
+    off = prepare(_scene(mesh=teapot, lights=lights, render_opts={"indirect": "off"}), resolution=(8, 8),
+                  bssrdf="dipole")[0]
+    assert on.self_indirect is not None and off.self_indirect is None and on.indirect is None
+    own = np.asarray(on.self_indirect)
+    assert own.shape == (on.areas.shape[0], 3) and np.all(own >= 0.0)
+    assert 0.05 < np.mean(own.sum(-1) > 0) < 0.95  # the inside of the spout and body see the lit surface; the lid not
+    medium = jaxsss.Medium(jnp.array([0.002, 0.004, 0.007]), jnp.array([2.2, 2.6, 3.0]), 1.3)  # marble-like
+    rho = np.asarray(F_dt_external(medium.eta) * medium_total_diffuse_reflectance(medium))
+    assert np.all((0.5 < rho) & (rho < 1.0))
+    np.testing.assert_allclose(np.asarray(on.indirect_irradiance(medium)), rho * own, rtol=1e-12)
+    # The same samples (same seed) with and without the bounce: only light is added.
+    flux_on, flux_off = np.asarray(on.sample_flux(medium)), np.asarray(off.sample_flux(medium))
+    assert np.all(flux_on >= flux_off - 1e-15) and flux_on.sum() > flux_off.sum()
+
+    def total(theta):
+        m = jaxsss.Medium(jnp.exp(theta[:3]), jnp.exp(theta[3:]), 1.3)
+        return jnp.sum(on.sample_flux(m) - off.sample_flux(m))
+
+    assert_grad_matches_fd(total, jnp.log(jnp.array([0.002, 0.004, 0.007, 2.2, 2.6, 3.0])), rtol=1e-5)
