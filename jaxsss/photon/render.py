@@ -287,7 +287,9 @@ def prepare_photon(scene, *, n_photons: int | None = None, eps: float | None = N
         "interactions_per_point_max": int(counts.max()) if n_q else 0,
     }
     items = _plan_items(scene, trace, walk, stree, pairs, eps, n_pairs, base_plan)
-    return prepared, base_plan._replace(method="photon", items=items), info
+    # Light that leaves a non-convex object and re-enters is in the photon walks ("photon walks"), not in the
+    # diffusion renderer's self inter-reflection term.
+    return prepared, base_plan._replace(method="photon", items=items, self_bounce=False), info
 
 
 def _prepare_registered(scene, *, resolution=None, pixel_mask=None, fit=False, progress=False, eps=None,

@@ -173,10 +173,10 @@ def _cosine_directions(normals: np.ndarray, n_rays: int, rng: np.random.Generato
     return local[..., :1] * t[:, None] + local[..., 1:2] * b[:, None] + local[..., 2:] * normals[:, None]
 
 
-def _bounce(scene, geometry, points, normals, n_rays: int, seed: int, objects) -> np.ndarray:
-    """``(P, C)``: the cosine-weighted mean, over ``n_rays`` rays per point, of the direct irradiance (W/mm^2) at the
-    first hits on the objects ``objects(obj)`` selects (0 the translucent object, 1.. the occluders), times
-    ``weight(obj)`` (the hit's diffuse albedo, or 1); other rays add zero. With Lambertian reflection at the hits,
+def _bounce(scene, geometry, points, normals, n_rays: int, seed: int, weight) -> np.ndarray:
+    """``(P, C)``: the cosine-weighted mean, over ``n_rays`` rays per point, of the direct irradiance (W/mm^2) at each
+    ray's first hit times ``weight(obj)`` ``(R, C)``, the hit object's diffuse albedo (``obj``: 0 the translucent
+    object, 1.. the occluders, negative a miss; a zero row leaves the ray out). With Lambertian reflection at the hits,
     ``E = pi mean(L) = mean(albedo E_direct)``. Area and environment lights are sampled with at most
     :data:`INDIRECT_LIGHT_SAMPLES` directions at each hit (the ``n_rays`` hits per point already average them)."""
     rng = np.random.default_rng(seed)
@@ -185,15 +185,15 @@ def _bounce(scene, geometry, points, normals, n_rays: int, seed: int, objects) -
     hits = geometry.first_hit(origins, dirs)
     n_c = max(np.asarray(light.intensity).size for light in scene.lights)
     out = np.zeros((len(dirs), n_c))
-    weight = objects(hits.obj)
-    idx = np.flatnonzero(hits.hit & np.any(weight > 0, axis=-1))
+    albedo = weight(hits.obj)
+    idx = np.flatnonzero(hits.hit & np.any(albedo > 0, axis=-1))
     if len(idx):
         y = hits.position[idx]
         ny = geometry.combined.face_normals[hits.face[idx]]
         ny = np.where(np.einsum("ij,ij->i", ny, dirs[idx])[:, None] > 0, -ny, ny)  # face the incoming ray
         direct = light_field(capped_samples(scene.lights, INDIRECT_LIGHT_SAMPLES), y, ny, geometry,
                              seed=seed + 1).irradiance.sum(axis=1)
-        out[idx] = weight[idx] * direct
+        out[idx] = albedo[idx] * direct
     return out.reshape(len(points), n_rays, n_c).mean(axis=1)
 
 
