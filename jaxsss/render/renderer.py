@@ -21,8 +21,8 @@ from tqdm import tqdm
 
 from jaxsss.medium import Medium
 from jaxsss.render import radiance as rad
-from jaxsss.render.bssrdf import (exit_model_for, incident_flux, shift_reach, surface_tangents, white_kernel,
-                                  white_tables)
+from jaxsss.render.bssrdf import (albedo_correction, exit_model_for, incident_flux, shift_reach, surface_tangents,
+                                  white_kernel, white_tables)
 from jaxsss.render.passage import interaction_probability
 from jaxsss.render.camera import camera_frame
 from jaxsss.render.methods import Preparation, register_method
@@ -100,6 +100,12 @@ class Prepared(ReflectingPoints):
                 # Uncollided passage: only the light that interacts before its chord ends enters the profile.
                 irradiance = irradiance * interaction_probability(
                     self.light_chord, medium.sigma_a + medium.sigma_s_prime / (1.0 - g))
+            if self.bssrdf_exit == "chandrasekhar" and len(self.bssrdf_mus) > 1:
+                # Index-matched: the node mix reflects Chandrasekhar's exact total at every incidence cosine.
+                albedo = jnp.broadcast_to(medium.alpha_prime, irradiance.shape[-1:])
+                irradiance = irradiance * albedo_correction(self.light_cos, self.bssrdf_mus, albedo)
+                if indirect is not None:
+                    indirect = indirect * albedo_correction(None, self.bssrdf_mus, albedo)
             return incident_flux(self.bssrdf_mus, self.areas, self.light_cos, irradiance, indirect,
                                  self.texture, self.light_tangent)
         return rad.transmitted_flux(medium, self.areas, self.light_cos, self.light_irradiance, indirect,

@@ -319,3 +319,37 @@ def test_the_compiled_image_carries_neither_host_callbacks_nor_the_tables():
     text = image_of.lower(prepared, medium).as_text()
     assert "callback" not in text
     assert len(text) < 2_000_000, len(text)
+
+
+@pytest.mark.parametrize("a", [1.0, 0.999, 0.96, 0.68, 0.1, 0.0])
+def test_albedo_correction_makes_the_node_mix_reflect_chandrasekhars_total(a):
+    """The hat-weighted nodes reflect ``sum_k h_k(mu) A(mu_k)``; ``A(mu) = 1 - H(mu) sqrt(1 - a)`` is convex in ``mu``,
+    so that mix is too bright between the nodes and too dark below the last one. Times the correction it is ``A(mu)``
+    at every cosine (grid interpolation: 2e-4), 1 at the nodes; the same for diffuse light. Differentiable in ``a``."""
+    from jaxsss.render.bssrdf import albedo_correction, directional_albedo, hat_weights
+
+    mus = (1.0,) + bssrdf.KERNEL_MUS
+    albedo = jnp.array([a])
+    mu = jnp.linspace(0.0, 1.0, 397)  # off the correction's grid
+    nodes = directional_albedo(jnp.asarray(mus)[:, None], albedo)
+    mix = hat_weights(mu, mus) @ nodes
+    corrected = mix * albedo_correction(mu, mus, albedo)
+    np.testing.assert_allclose(corrected, directional_albedo(mu[:, None], albedo), rtol=2e-4)
+    np.testing.assert_allclose(albedo_correction(jnp.asarray(mus), mus, albedo), 1.0, rtol=1e-12)
+    if 0.0 < a < 0.99:  # the mix is measurably off between the nodes (skin-like albedos: 0.5-4%)
+        c = np.asarray(albedo_correction(jnp.array([0.3, 0.75, 0.05]), mus, albedo))[:, 0]
+        assert c[0] < 0.999 and c[1] < 0.999 and c[2] > 1.001, c
+    t, w = np.polynomial.legendre.leggauss(200)
+    t = 0.5 * (t + 1.0)
+    exact = np.sum(w * t * np.asarray(directional_albedo(jnp.asarray(t)[:, None], albedo))[:, 0])
+    diffuse_mix = float(bssrdf._diffuse_weights(mus) @ nodes[:, 0])
+    np.testing.assert_allclose(diffuse_mix * float(albedo_correction(None, mus, albedo)[0]), exact, rtol=1e-9)
+    f = lambda x: jnp.sum(albedo_correction(jnp.array([0.3, 0.75, 0.05]), mus, x))  # noqa: E731
+    grad = float(jax.grad(f)(albedo)[0])
+    if a in (0.0, 1.0):  # nothing reflected / nothing absorbed: the correction is 1, its derivative finite (0 at 1)
+        np.testing.assert_allclose(np.asarray(albedo_correction(mu, mus, albedo)), 1.0, rtol=1e-12)
+        assert np.isfinite(grad) and (a == 0.0 or grad == 0.0), grad
+        return
+    h = 1e-6 * min(a, 1 - a)
+    fd = (float(f(jnp.array([a + h]))) - float(f(jnp.array([a - h])))) / (2 * h)
+    np.testing.assert_allclose(grad, fd, rtol=1e-5)

@@ -95,9 +95,12 @@ def test_the_terminator_of_the_path_traced_ketchup_sphere():
     (2.3 / 1.5 / 1.7% pixel noise; tests/export/references/ketchup_sphere). Measured 2026-11-27: with the passage the
     terminator band's mare is 0.114 / 0.127 / 0.158 and mare_lit 0.170 / 0.058 / 0.073, sums 1.055 / 1.038 / 1.054;
     without it (every chord infinite, the half-space) the band is 0.249 / 0.157 / 0.180 and mare_lit 0.248 / 0.062 /
-    0.076. Red misses the goal either way: its sphere is 4.8 transport lengths in radius, where the curvature ratio of
-    the half-space kernel overshoots (docs/path_tracer.md). Bounds: the achieved level plus about 10%, and the
-    passage must beat the half-space in the band of every channel."""
+    0.076. With Chandrasekhar's exact albedo between the incidence nodes (``bssrdf.albedo_correction``, later that
+    day): band 0.096 / 0.132 / 0.173, mare_lit 0.155 / 0.041 / 0.050, sums 1.040 / 1.006 / 1.022 (blue's band is the
+    one number that rose). Red misses the goal either way: its sphere is 4.8 transport lengths in radius, where the
+    curvature ratio of the half-space kernel overshoots (docs/path_tracer.md). Bounds: the achieved level plus about
+    10% (the goal's 3% for the sums where met), and the passage must beat the half-space in the band of every
+    channel."""
     from jaxsss.export.compare import compare_images, pixel_geometry
     from jaxsss.render import load_scene, render
     from jaxsss.render.methods import image_of, resolve_method
@@ -109,9 +112,9 @@ def test_the_terminator_of_the_path_traced_ketchup_sphere():
     result = render(scene)
     pixels = pixel_geometry(scene)
     m = compare_images(result.image, ref, pixels, coverage=coverage)
-    assert np.all(np.array(m["mare_band"]) <= (0.126, 0.14, 0.174)), m["mare_band"]
-    assert np.all(np.array(m["mare_lit"]) <= (0.187, 0.064, 0.081)), m["mare_lit"]
-    assert np.all(np.abs(np.array(m["sum_ratio"]) - 1.0) <= (0.061, 0.042, 0.06)), m["sum_ratio"]
+    assert np.all(np.array(m["mare_band"]) <= (0.106, 0.145, 0.19)), m["mare_band"]
+    assert np.all(np.array(m["mare_lit"]) <= (0.17, 0.045, 0.055)), m["mare_lit"]
+    assert np.all(np.abs(np.array(m["sum_ratio"]) - 1.0) <= (0.044, 0.03, 0.03)), m["sum_ratio"]
     state = result.prepared.state
     half_space = eqx.tree_at(lambda s: s.light_chord, state, jnp.full_like(state.light_chord, jnp.inf))
     image = np.asarray(image_of(half_space, resolve_method("hierarchical").params(scene)))
