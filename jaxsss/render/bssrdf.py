@@ -89,9 +89,8 @@ from jaxsss.medium import Medium
 from jaxsss.render.curvature import curvature_ratio, pair_curvature
 
 __all__ = ["BSSRDFS", "GRID_PER_DECADE", "OBLIQUE_MUS", "WhiteKernel", "albedo_correction", "chandrasekhar_h",
-           "choose_bssrdf",
-           "exit_distribution", "exit_radiance_nodes", "hat_weights", "surface_tangents",
-           "incident_flux", "oblique_dir", "oblique_pairs", "oblique_sources", "shift_reach", "WhiteSources",
+           "choose_bssrdf", "directional_albedo", "exit_distribution", "exit_radiance_nodes", "hat_weights",
+           "surface_tangents", "incident_flux", "oblique_dir", "oblique_pairs", "oblique_sources", "shift_reach", "WhiteSources",
            "white_kernel", "white_table", "white_tables"]
 
 BSSRDFS = ("auto", "dipole", "white", "white-oblique")
@@ -385,6 +384,7 @@ def albedo_correction(mu, mus, albedo):
     diffuse light, ``2 int A(mu) mu dmu`` over the cosine-weighted node weights, ``(C,)``."""
     a = jnp.asarray(albedo)
     nodes = directional_albedo(jnp.asarray(mus)[:, None], a)  # (K, C)
+
     def ratio(exact, mix):  # 1 where nothing is reflected (a = 0)
         return jnp.where(mix > 0.0, exact / jnp.where(mix > 0.0, mix, 1.0), 1.0)
 
@@ -394,8 +394,8 @@ def albedo_correction(mu, mus, albedo):
         exact = jnp.sum((w * t)[:, None] * directional_albedo(jnp.asarray(t)[:, None], a), axis=0)
         return ratio(exact, jnp.einsum("k,kc->c", _diffuse_weights(mus), nodes))
     # Exact directional albedo over the nodes' linear mix, on a grid of cosines that holds the nodes (the ratio has
-    # kinks there), then linear in mu at each light column (H at every column would cost 64 nodes each).
-    # (finer below 0.05, where H is steepest: within 2e-4 of the exact ratio everywhere).
+    # kinks there) and is finer below 0.05 (H is steepest there), then linear in mu at each light column: within 2e-4
+    # of the exact ratio everywhere (H at every column would cost 64 quadrature nodes each).
     grid = jnp.asarray(np.union1d(np.union1d(np.linspace(0.0, 1.0, 201), np.linspace(0.0, 0.05, 101)),
                                   np.asarray(mus, dtype=np.float64)))
     on_grid = ratio(directional_albedo(grid[:, None], a), jnp.einsum("gk,kc->gc", hat_weights(grid, mus), nodes))
