@@ -66,7 +66,7 @@ from jaxsss.render.camera import camera_rays
 from jaxsss.render.methods import Preparation, register_method, resolve_method
 from jaxsss.render.pairs import pair_info, pair_lists
 from jaxsss.render.plan import PlanItem, make_plan
-from jaxsss.render.radiance import F_dt_external
+from jaxsss.render.radiance import F_dt_external, diffuse_albedo
 from jaxsss.render.rays import OBJECT_TRANSLUCENT, SceneGeometry
 from jaxsss.render.renderer import assemble_prepared, irradiance_pass
 from jaxsss.render.shading import shading_points
@@ -308,10 +308,7 @@ def _transmitted_irradiance(samples, medium: Medium) -> np.ndarray:
     if samples.indirect is not None:
         e_t = e_t + f_dt * samples.indirect.mean(axis=-1)
     if samples.self_indirect is not None:  # the object's own bounce, at the scene's material (Prepared.sample_flux)
-        from jaxsss.reflectance import medium_total_diffuse_reflectance
-
-        rho = f_dt * np.asarray(medium_total_diffuse_reflectance(medium))
-        e_t = e_t + f_dt * (rho * samples.self_indirect).mean(axis=-1)
+        e_t = e_t + f_dt * (np.asarray(diffuse_albedo(medium)) * samples.self_indirect).mean(axis=-1)
     if samples.texture is not None:
         e_t = e_t * samples.texture.mean(axis=-1)
     return e_t

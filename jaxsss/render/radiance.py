@@ -44,6 +44,7 @@ from jaxsss.reflectance import medium_total_diffuse_reflectance
 __all__ = [
     "DipoleKernel",
     "F_dt_external",
+    "diffuse_albedo",
     "dipole_gradient_factor",
     "disc_integral",
     "entity_flux",
@@ -123,6 +124,13 @@ def F_dt_external(eta, fresnel: str = "poly"):
     """``1 - F_dr(1/eta)``: diffuse transmittance for light arriving from outside (cosine-weighted average of
     ``F_t``), equal to ``eta^2 (1 - F_dr(eta))`` by reciprocity (exactly so for ``fresnel="exact"``)."""
     return 1.0 - resolve_fresnel_method(fresnel)(1.0 / eta)
+
+
+def diffuse_albedo(medium: Medium):
+    """``rho = F_dt,ext Rd``: the fraction of diffuse irradiance on the surface that the medium sends back out
+    diffusely (Eq. 15's total diffuse reflectance, entered through the boundary's hemispherical transmittance); the
+    object's bounce off itself (:func:`jaxsss.render.samples.self_irradiance`) reaches it again with this albedo."""
+    return F_dt_external(medium.eta, medium.fresnel) * medium_total_diffuse_reflectance(medium)
 
 
 def transmitted_flux(medium: Medium, areas, light_cos, light_irradiance, indirect=None, texture=None):

@@ -82,11 +82,8 @@ class Prepared(ReflectingPoints):
         reflectance of the medium, entered through the boundary's hemispherical transmittance)."""
         if self.self_indirect is None:
             return self.indirect
-        from jaxsss.reflectance import medium_total_diffuse_reflectance
-
         # One bounce off the object itself: its exitance is rho times the irradiance it receives (local).
-        rho = rad.F_dt_external(medium.eta, medium.fresnel) * medium_total_diffuse_reflectance(medium)
-        own = rho * self.self_indirect
+        own = rad.diffuse_albedo(medium) * self.self_indirect
         return own if self.indirect is None else self.indirect + own
 
     def sample_flux(self, medium: Medium):
