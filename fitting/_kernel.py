@@ -171,13 +171,13 @@ def data_guess(r, y, se, r_lo, r_hi, cfg: Config):
 
 
 # --- 2. Multi-start ------------------------------------------------------------------------------------------------
-def score_radii(r, r_lo, r_hi):
+def score_radii(r, r_lo, r_hi, real):
     """``(idx, keep)``, each ``(M,)`` with ``M = min(N, SCORE_RADII)``: indices of radii spread evenly (in index)
-    from the first to the last radius in ``[r_lo, r_hi]``, and which of them are new (repeats, when the range holds
-    fewer than ``M`` radii, are left out)."""
+    from the first to the last radius in ``[r_lo, r_hi]`` that is ``real`` (not padding, ``(N,)`` bool), and which of
+    them are new (repeats, when the range holds fewer than ``M`` radii, are left out)."""
     n = r.shape[0]
     m = min(n, SCORE_RADII)
-    inside = (r >= r_lo) & (r <= r_hi)
+    inside = (r >= r_lo) & (r <= r_hi) & real
     pos = jnp.arange(n)
     first = jnp.min(jnp.where(inside, pos, n - 1))
     last = jnp.max(jnp.where(inside, pos, 0))
@@ -220,7 +220,7 @@ def starts(r, y, se, eta, d, r_lo, r_hi, auto, cfg: Config):
     # candidate l_d, not over every radius: the range may hold a few of them only.)
     r_top = r_hi if model.r_max_ld is None else jnp.where(jnp.isinf(r_hi), model.r_max_ld * ld * max(LD_FACTORS),
                                                           r_hi)
-    idx, keep = score_radii(r, r_lo, r_top)
+    idx, keep = score_radii(r, r_lo, r_top, jnp.any(se >= 0.0, axis=0))  # se < 0: padding (profile_fit._pad_radii)
     r_s = r[idx]
     y, w = y[:, idx], w_full[:, idx]
     in_range = in_range_full[:, idx] & keep[None, :]

@@ -445,6 +445,32 @@ def _solve(cfg, shard, r, theta0, mask, y, se, eta, d):
 
 
 # --- Public entry points ------------------------------------------------------------------------------------------
+RADII_BUCKET_MIN = 64  # the radii are padded to a power of two of at least this many, up to ...
+RADII_BUCKET_STEP = 512  # ... this many, then to a multiple of it
+
+
+def _radii_bucket(n: int) -> int:
+    """The padded radius count (:func:`_pad_radii`): a power of two of at least :data:`RADII_BUCKET_MIN`, then a
+    multiple of :data:`RADII_BUCKET_STEP`."""
+    if n > RADII_BUCKET_STEP:
+        return -(-n // RADII_BUCKET_STEP) * RADII_BUCKET_STEP
+    return max(RADII_BUCKET_MIN, 1 << (n - 1).bit_length())
+
+
+def _pad_radii(r, y, se):
+    """``(r, y, se)`` padded along the radii to :func:`_radii_bucket`: copies of the last radius with ``y = 0`` and
+    ``se = -1``, which :func:`fitting._kernel.weights` never uses and :func:`fitting._kernel.score_radii` skips. The
+    compiled fit is keyed by the shapes, so profiles of 65 to 128 radii share one compilation (tens of seconds for a
+    tabulated model) instead of one per length; the padded points cost at most twice the evaluations."""
+    n = r.shape[0]
+    pad = _radii_bucket(n) - n
+    if not pad:
+        return r, y, se
+    r = np.concatenate([r, np.full(pad, r[-1])])
+    widths = [(0, 0)] * (np.ndim(y) - 1) + [(0, pad)]
+    return r, np.pad(y, widths), np.pad(se, widths, constant_values=-1.0)
+
+
 def _unpack_data(r, R, R_stderr, T, T_stderr):
     if isinstance(r, ProfileData):
         if any(x is not None for x in (R, R_stderr, T, T_stderr)):
@@ -530,18 +556,20 @@ def _fit(owner, batched, r, R, R_stderr, T, T_stderr, *, eta, model, thickness, 
         if equal_bin_edges(pb.r) is not None:
             source_bin = True
             pb.r_lo = np.maximum(pb.r_lo, 0.5 * (pb.r[0] + pb.r[1]))
-    y, se, eta_p, d = pb.y, pb.se, pb.eta, pb.d
+    n_r = len(pb.r)
+    r, y, se = _pad_radii(pb.r, pb.y, pb.se)
+    eta_p, d = pb.eta, pb.d
     per_problem = (y, se, eta_p, d, pb.r_lo, pb.r_hi, pb.auto)
     notes = []
     P_ = pb.B * pb.C
     if model.prepare is None and not (cfg.native and P_ * K.N_STARTS > FUSED_MAX):
         # One compiled call: starts, solves from every start, choice and checks.
-        out, theta0, mask, r_cut, flags = _run("fit", cfg, shard, pb.r, *per_problem)
+        out, theta0, mask, r_cut, flags = _run("fit", cfg, shard, r, *per_problem)
     else:
         # Models with a static setting score the start candidates with a fixed, cheap one (ranking needs no
         # precision, and a fixed value means one compilation for every data set).
         cfg_s = cfg._replace(static=model.guess_static) if model.prepare is not None else cfg
-        theta0, mask, r_cut, flags = _run("starts", cfg_s, shard, pb.r, *per_problem)
+        theta0, mask, r_cut, flags = _run("starts", cfg_s, shard, r, *per_problem)
         # Solve; for models with a static setting, re-solve if the solution needs a larger one. The static setting is
         # chosen at the start with a factor 2 margin (the solution usually needs no more, so one compilation
         # serves); if the solution needs more, solve again from it and add the iterations.
@@ -559,7 +587,7 @@ def _fit(owner, batched, r, R, R_stderr, T, T_stderr, *, eta, model, thickness, 
                 need = static_need(start)
                 cfg = cfg._replace(static=_static_bucket(max(2 * need, cfg.static if attempt else 0),
                                                          model.static_cap))
-            thetas, results, steps, stationary = _solve(cfg, shard, pb.r, start, mask, y, se, eta_p, d)
+            thetas, results, steps, stationary = _solve(cfg, shard, r, start, mask, y, se, eta_p, d)
             steps_total = steps_total + steps
             if model.prepare is None:
                 break
@@ -569,12 +597,12 @@ def _fit(owner, batched, r, R, R_stderr, T, T_stderr, *, eta, model, thickness, 
             start = thetas
         for _ in range(K.VALLEY_ROUNDS if model.rough else 0):
             # Two more starts along the valley of the best solution (tabulated models; fitting._kernel.valley_starts).
-            v0 = _run("valley", cfg, shard, pb.r, thetas, results, steps_total, stationary, mask, y, se, eta_p, d)
-            extra = _solve(cfg, shard, pb.r, v0, mask, y, se, eta_p, d)
+            v0 = _run("valley", cfg, shard, r, thetas, results, steps_total, stationary, mask, y, se, eta_p, d)
+            extra = _solve(cfg, shard, r, v0, mask, y, se, eta_p, d)
             thetas, results, steps_total, stationary = jax.tree_util.tree_map(
                 lambda a, b: np.concatenate([np.asarray(a), np.asarray(b)], axis=1),
                 (thetas, results, steps_total, stationary), tuple(extra))
-        out = _run("finish", cfg, shard, pb.r, thetas, results, steps_total, stationary, mask, y, se, eta_p, d)
+        out = _run("finish", cfg, shard, r, thetas, results, steps_total, stationary, mask, y, se, eta_p, d)
     out = jax.block_until_ready(out)
     seconds = time.perf_counter() - t0
     slope_failed, fallback, ratio_raised = (np.asarray(f) for f in flags)
@@ -640,7 +668,7 @@ def _fit(owner, batched, r, R, R_stderr, T, T_stderr, *, eta, model, thickness, 
                 "local minima -- give a smaller r_max")
     if model.noise is not None:
         # The model's own Monte Carlo noise over each fit's range, at the solution (MODEL_NOISE_LIMIT).
-        noisy = _model_noise(model, cfg, pb.r, np.asarray(mask), out)
+        noisy = _model_noise(model, cfg, pb.r, np.asarray(mask)[..., :n_r], out)
         if np.any(noisy > MODEL_NOISE_LIMIT):
             i = int(np.argmax(noisy > MODEL_NOISE_LIMIT))
             model_warnings.append(

@@ -12,7 +12,7 @@ import fitting
 from jaxsss.mc import Stack, simulate, white_family_profile
 
 G, N = 0.5, 1.35
-R_GRID = np.geomspace(0.02, 30.0, 50)
+R_GRID = np.geomspace(0.02, 30.0, 100)  # 100 radii: padded to 128, as the other mc fits of the suite (one compilation)
 
 
 @pytest.fixture(scope="module")
@@ -68,7 +68,7 @@ def test_mc_does_not_apply_the_entry_transmittance(noise_free_fit):
 
 
 def test_monte_carlo_measurement_recovered():
-    """1e5 photons of the engine at the off-grid (g, n), albedo 0.8, 50 equal bins to 6 mm (~6 l_d): as many radii
+    """1e5 photons of the engine at the off-grid (g, n), albedo 0.8, 100 equal bins to 6 mm (~6 l_d): as many radii
     as the noise-free fit's, so the two share one compiled fit (the white-MC model is a large graph).
 
     Tolerance: 4 standard errors (the fit's own, from the data's per-bin errors) plus 1% for the model's systematic

@@ -17,7 +17,7 @@ import pytest
 
 import fitting
 import jaxsss
-from fitting import _kernel
+from fitting import _kernel, profile_fit
 
 ROOT = Path(__file__).resolve().parents[2]
 R_GRID = np.geomspace(0.05, 20.0, 40)
@@ -221,6 +221,34 @@ def test_second_call_with_new_values_does_not_retrace(marble_fit):
     fit = fitting.fit_profile(R_GRID, dipole_data(SA * 1.5, SS * 0.8), eta=ETA)
     assert _kernel.TRACES == before
     np.testing.assert_allclose(fit.sigma_a, SA * 1.5, rtol=1e-8)
+
+
+def test_profiles_of_other_lengths_in_one_bucket_share_the_compiled_fit(marble_fit):
+    # R_GRID's 40 radii and a 57-radius profile both pad to 64: no new trace, and the truth recovered.
+    fitting.fit_profile(R_GRID, dipole_data(), eta=ETA)
+    before = dict(_kernel.TRACES)
+    r = np.geomspace(0.08, 15.0, 57)
+    fit = fitting.fit_profile(r, dipole_data(SA * 1.5, SS * 0.8, r=r), eta=ETA)
+    assert _kernel.TRACES == before
+    np.testing.assert_allclose(fit.sigma_a, SA * 1.5, rtol=1e-8)
+    assert np.all(np.asarray(fit.n_points) <= 57) and np.all(np.asarray(fit.r_max) <= 15.0)
+
+
+def test_padding_the_radii_changes_no_result(monkeypatch):
+    # The padded points (y = 0, se = -1) enter neither the starts, the solve nor the statistics.
+    rng = np.random.default_rng(3)
+    R = dipole_data()
+    R = R * (1 + 0.02 * rng.standard_normal(R.shape))
+    for relative in (False, True):
+        kw = dict(eta=ETA, relative=relative, warn=False)
+        kw.update({} if relative else dict(R_stderr=0.02 * R))
+        padded = fitting.fit_profile(R_GRID, R, **kw)
+        monkeypatch.setattr(profile_fit, "_radii_bucket", lambda n: n)
+        exact = fitting.fit_profile(R_GRID, R, **kw)
+        monkeypatch.undo()
+        for name in ("sigma_a", "sigma_s_prime", "sigma_a_stderr", "sigma_s_prime_stderr", "reduced_chi2",
+                     "n_points", "r_min", "r_max", "guess_sigma_a", "residual_autocorrelation"):
+            np.testing.assert_allclose(getattr(padded, name), getattr(exact, name), rtol=1e-9, err_msg=name)
 
 
 def shard_data():
