@@ -431,7 +431,7 @@ class WhiteKernel(eqx.Module):
     log_R: jax.Array
     sigma_s: jax.Array
     shift_length: jax.Array | None = None
-    curvature: tuple | None = None  # (sigma_a, sigma_s', A), each (C,): the curvature ratio's medium (None: flat)
+    curvature: tuple | None = None  # (sigma_a, sigma_s', A) each (C,), depth (K, C): the curvature ratio's (None: flat)
 
     def profile(self, r):
         """``R_k(r)`` in 1/mm^2 at distances ``r`` (mm): ``(P,)`` gives ``(P, K, C)``; ``(P, K, C)`` is evaluated
@@ -564,7 +564,7 @@ def white_kernel(medium: Medium, sources: WhiteSources, mus: tuple = (1.0,) + KE
     oblique profiles forward (:data:`SHIFT_RATIO`; the samples' flux then carries the travel directions). Jitted;
     the family is loaded here, outside the trace (its first load runs JAX code on concrete values). ``curvature``:
     the kernel carries the medium for the curvature ratio (:mod:`jaxsss.render.curvature`), applied to the pairs whose
-    normals the sums pass."""
+    normals the sums pass, with each node's source at the depth of its refracted cosine."""
     from jaxsss.mc.white_family import load_white_family
 
     load_white_family()
@@ -574,7 +574,11 @@ def white_kernel(medium: Medium, sources: WhiteSources, mus: tuple = (1.0,) + KE
     c = kernel.sigma_s.shape
     params = tuple(jnp.broadcast_to(jnp.asarray(v, kernel.sigma_s.dtype), c)
                    for v in (medium.sigma_a, medium.sigma_s_prime, medium.A))
-    return eqx.tree_at(lambda k: k.curvature, kernel, params, is_leaf=lambda x: x is None)
+    # Each node's source at its refracted cosine mu_t (in units of l_u): (K, C).
+    mu = jnp.asarray(mus, kernel.sigma_s.dtype)[:, None]
+    eta = jnp.broadcast_to(jnp.asarray(medium.eta, kernel.sigma_s.dtype), c)
+    depth = jnp.sqrt(jnp.maximum(1.0 - (1.0 - mu * mu) / (eta * eta), 0.0))
+    return eqx.tree_at(lambda k: k.curvature, kernel, params + (depth,), is_leaf=lambda x: x is None)
 
 
 @eqx.filter_jit

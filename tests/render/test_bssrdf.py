@@ -108,6 +108,23 @@ def skin_kernel():
     return white_kernel(_skin(), _all_tables(), MUS, shift=True)
 
 
+def test_each_nodes_curvature_source_sits_at_its_refracted_cosine(skin_kernel):
+    # (sigma_a, sigma_s', A) of the medium, then the depth mu_t of each node in units of l_u: mu itself at eta = 1 ...
+    kernel = white_kernel(_skin(), _all_tables(), MUS, shift=True, curvature=True)
+    sa, ss, A, depth = (np.asarray(x) for x in kernel.curvature)
+    np.testing.assert_array_equal(sa, _skin().sigma_a)
+    np.testing.assert_array_equal(ss, _skin().sigma_s_prime)
+    np.testing.assert_allclose(A, _skin().A, rtol=1e-14)
+    np.testing.assert_allclose(depth, np.broadcast_to(np.asarray(MUS)[:, None], (5, 3)), rtol=1e-14)
+    # ... and Snell's refracted cosine at eta = 1.33 (steeper inside: grazing light is never shallower than 0.66).
+    medium = jaxsss.Medium(jnp.array([0.032, 0.17, 0.48]), jnp.array([0.74, 0.88, 1.01]), 1.33)
+    mus, sources = white_tables(0.0, 1.33, True)
+    depth = np.asarray(white_kernel(medium, sources, mus, curvature=True).curvature[3])
+    mu = np.asarray(mus)[:, None]
+    np.testing.assert_allclose(depth, np.broadcast_to(np.sqrt(1 - (1 - mu**2) / 1.33**2), (3, 3)), rtol=1e-14)
+    assert depth.min() > 0.66
+
+
 def test_grid_matches_the_table_model_and_its_disc_integral(skin_kernel):
     medium, kernel = _skin(), skin_kernel
     r = jnp.asarray(np.geomspace(1e-3, 40.0, 97))

@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 from jaxsss import Medium
-from jaxsss.render.curvature import KAPPA_MAX_ZR, _sphere_exitance, curvature_ratio, pair_curvature
+from jaxsss.render.curvature import DEPTH_MIN, KAPPA_MAX_ZR, _sphere_exitance, curvature_ratio, pair_curvature
 from tests.gradcheck import assert_grad_matches_fd
 
 SKIN1_A = np.array([0.032, 0.17, 0.48])
@@ -94,6 +94,34 @@ def test_the_image_cancels_the_fluence_on_the_extrapolated_sphere():
     np.testing.assert_allclose(np.asarray(_sphere_exitance(d, 1 / a, z_r, z_b, s)) * ref, flux, rtol=1e-6)
 
 
+@pytest.mark.parametrize("depth", [1.0, 0.5, 0.1])
+def test_an_oblique_source_against_the_direct_form(depth):
+    """Ketchup's red channel (l_u = 4.1 mm) on the 20 mm sphere, its source ``depth l_u`` deep: the ratio equals the
+    radial flux of the direct (unstable) form of the same source and image over the planar dipole's (Jensen et al.
+    2001 Eq. 4, written out here) with the source at that depth."""
+    sa, ss, a = 0.061, 0.18, 20.0
+    st = sa + ss
+    z_r, z_b, s = depth / st, 2 / (3 * st), np.sqrt(3 * sa * st)
+    d = np.array([0.7, 3.0, 9.0, 20.0])
+    cos_d = 1 - 0.5 * (d / a) ** 2
+    h = 1e-6
+    flux = -(_image_fluence(a + h, cos_d, a, z_r, z_b, s) - _image_fluence(a - h, cos_d, a, z_r, z_b, s)) / (2 * h)
+    z_v = z_r + 2 * z_b
+    dr, dv = np.sqrt(z_r**2 + d**2), np.sqrt(z_v**2 + d**2)
+    plane = z_r * (1 + s * dr) * np.exp(-s * dr) / dr**3 + z_v * (1 + s * dv) * np.exp(-s * dv) / dv**3
+    np.testing.assert_allclose(curvature_ratio(d, 1 / a, sa, ss, 1.0, depth), flux / plane, rtol=1e-5)
+
+
+def test_depth_is_clipped_to_its_range():
+    d = np.array([1e-6, 0.5, 5.0, 40.0])
+    np.testing.assert_array_equal(curvature_ratio(d, 0.05, 0.061, 0.18, 1.0, 0.0),
+                                  curvature_ratio(d, 0.05, 0.061, 0.18, 1.0, DEPTH_MIN))
+    np.testing.assert_array_equal(curvature_ratio(d, 0.05, 0.061, 0.18, 1.0, 3.0),
+                                  curvature_ratio(d, 0.05, 0.061, 0.18, 1.0))
+    val = np.asarray(curvature_ratio(d, 0.05, 0.061, 0.18, 1.0, DEPTH_MIN))
+    assert np.all(np.isfinite(val)) and np.all(val >= 0)
+
+
 def test_planar_limit_and_near_the_source():
     d = np.geomspace(1e-3, 50.0, 40)
     np.testing.assert_array_equal(curvature_ratio(d, 0.0, 0.1, 1.0, 2.0), np.ones_like(d))
@@ -156,6 +184,11 @@ def test_gradients_match_finite_differences():
         return jnp.sum(curvature_ratio(jnp.array([0.5, 3.0, 9.0]), 1 / 15, p[0], p[1], p[2]) ** 2)
 
     assert_grad_matches_fd(f, np.array([0.05, 1.2, 2.5]), rtol=1e-6)
+
+    def g(p):  # a shallow (oblique) source
+        return jnp.sum(curvature_ratio(jnp.array([0.5, 3.0, 9.0]), 1 / 15, p[0], p[1], p[2], 0.3) ** 2)
+
+    assert_grad_matches_fd(g, np.array([0.05, 1.2, 2.5]), rtol=1e-6)
 
 
 @pytest.fixture(scope="module")

@@ -97,10 +97,12 @@ def test_the_terminator_of_the_path_traced_ketchup_sphere():
     without it (every chord infinite, the half-space) the band is 0.249 / 0.157 / 0.180 and mare_lit 0.248 / 0.062 /
     0.076. With Chandrasekhar's exact albedo between the incidence nodes (``bssrdf.albedo_correction``, later that
     day): band 0.096 / 0.132 / 0.173, mare_lit 0.155 / 0.041 / 0.050, sums 1.040 / 1.006 / 1.022 (blue's band is the
-    one number that rose). Red misses the goal either way: its sphere is 4.8 transport lengths in radius, where the
-    curvature ratio of the half-space kernel overshoots (docs/path_tracer.md). Bounds: the achieved level plus about
-    10% (the goal's 3% for the sums where met), and the passage must beat the half-space in the band of every
-    channel."""
+    one number that rose). With each incidence node's curvature source at its own depth (``mu_t l_u``;
+    jaxsss.render.curvature, "Oblique incidence"; later still): band 0.067 / 0.127 / 0.170, mare_lit 0.101 / 0.040 /
+    0.049, sums 1.018 / 1.004 / 1.020. Red still misses the goal: its sphere is 4.8 transport lengths in radius, and
+    past the terminator (cos to the light below -0.1) it is 29-62% too bright (47-108% with one depth): the curvature
+    ratio of the half-space kernel overshoots there (docs/path_tracer.md). Bounds: the achieved level plus about 10%
+    (the goal's 3% for the sums), and the passage must beat the half-space in the band of every channel."""
     from jaxsss.export.compare import compare_images, pixel_geometry
     from jaxsss.render import load_scene, render
     from jaxsss.render.methods import image_of, resolve_method
@@ -112,9 +114,9 @@ def test_the_terminator_of_the_path_traced_ketchup_sphere():
     result = render(scene)
     pixels = pixel_geometry(scene)
     m = compare_images(result.image, ref, pixels, coverage=coverage)
-    assert np.all(np.array(m["mare_band"]) <= (0.106, 0.145, 0.19)), m["mare_band"]
-    assert np.all(np.array(m["mare_lit"]) <= (0.17, 0.045, 0.055)), m["mare_lit"]
-    assert np.all(np.abs(np.array(m["sum_ratio"]) - 1.0) <= (0.044, 0.03, 0.03)), m["sum_ratio"]
+    assert np.all(np.array(m["mare_band"]) <= (0.075, 0.14, 0.187)), m["mare_band"]
+    assert np.all(np.array(m["mare_lit"]) <= (0.111, 0.045, 0.054)), m["mare_lit"]
+    assert np.all(np.abs(np.array(m["sum_ratio"]) - 1.0) <= 0.03), m["sum_ratio"]
     state = result.prepared.state
     half_space = eqx.tree_at(lambda s: s.light_chord, state, jnp.full_like(state.light_chord, jnp.inf))
     image = np.asarray(image_of(half_space, resolve_method("hierarchical").params(scene)))
