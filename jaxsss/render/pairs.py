@@ -57,7 +57,7 @@ def pair_blocks(values: np.ndarray, fill: int, block: int) -> np.ndarray:
     return np.concatenate([values, np.full(pad, fill, dtype=values.dtype)]).reshape(-1, block)
 
 
-def split_near(inter, q_pos, tree, sorted_pos, rho0, chunk: int = 1 << 22):
+def split_near(inter, q_pos, tree, rho0, chunk: int = 1 << 22):
     """Split an interaction list into far pairs (summed point by point) and near (query, sample) pairs closer than
     ``rho0`` (the near list's radius: the near-field radius plus any shift of the kernel). Returns ``(far_mask,
     near_query, near_sample, nodes_inside)`` where ``nodes_inside``
@@ -68,10 +68,12 @@ def split_near(inter, q_pos, tree, sorted_pos, rho0, chunk: int = 1 << 22):
     nodes_inside = 0
     for s in range(0, len(far), chunk):
         q, e = inter.query[s:s + chunk], inter.entity[s:s + chunk]
-        pos = np.where((e < n)[:, None], sorted_pos[np.minimum(e, n - 1)], tree.centroid[e])
-        close = np.einsum("ij,ij->i", pos - q_pos[q], pos - q_pos[q]) < rho0 * rho0
-        far[s:s + chunk] = ~(close & (e < n))
-        nodes_inside += int(np.count_nonzero(close & (e >= n)))
+        # The tree's centroids begin with the sorted sample positions: one gather serves samples and nodes.
+        delta = tree.centroid[e] - q_pos[q]
+        close = np.einsum("ij,ij->i", delta, delta) < rho0 * rho0
+        sample = e < n
+        far[s:s + chunk] = ~(close & sample)
+        nodes_inside += int(np.count_nonzero(close & ~sample))
     near_q = inter.query[~far].astype(np.int32)
     near_s = inter.entity[~far].astype(np.int32)
     return far, near_q, near_s, nodes_inside
@@ -92,8 +94,7 @@ def pair_lists(tree, samples, q_pos, plan, *, progress: bool = False, block_pair
     if plan.method == "direct" or len(q_pos) == 0:
         return PairLists(None, None, None, None, rho0, np.full(len(q_pos), samples.n), 0)
     inter = build_interactions(tree, q_pos, plan.eps, r_cut=plan.r_cut, progress=progress)
-    far, near_q, near_s, nodes_inside = split_near(inter, q_pos, tree, samples.positions[tree.order],
-                                                   rho0 + near_margin)
+    far, near_q, near_s, nodes_inside = split_near(inter, q_pos, tree, rho0 + near_margin)
     pq = jnp.asarray(pair_blocks(inter.query[far].astype(np.int32), len(q_pos), block_pairs))
     pe = jnp.asarray(pair_blocks(inter.entity[far].astype(np.int32), 0, block_pairs))
     return PairLists(pq, pe, near_q, near_s, rho0, inter.counts(), nodes_inside)
