@@ -34,7 +34,8 @@ the refracted ray. The ratio of each incidence node of the white kernels (:data:
 places its source there (``depth = mu_t``). A shallow source feels the curvature less, and most of the light that
 reaches the far side of a sphere entered near its terminator at grazing angles: with one depth for every node, the
 ketchup sphere's red channel (``l_u = 4.1`` mm on a 20 mm sphere) was 47-108% too bright past the terminator against
-Mitsuba (cos to the light below -0.1), with the node's own depth 29-62% (``docs/path_tracer.md``, "Curvature").
+Mitsuba (cos to the light below -0.1), with the node's own depth 29-62% (``docs/path_tracer.md``, "Each incidence
+node's curvature source at its own depth").
 
 The curvature of a pair is that of the sphere through both points with their normals, ``kappa = (n_x - n_P) . (x -
 P) / |x - P|^2`` (exactly ``1 / a`` on a sphere of radius ``a``; 0 in a plane), from the shaded point's normal and the
@@ -52,7 +53,8 @@ __all__ = ["DEPTH_MIN", "KAPPA_MAX_ZR", "curvature_ratio", "pair_curvature"]
 KAPPA_MAX_ZR = 0.25
 """The largest curvature the ratio uses, in units of ``sigma_t'`` (a sphere of radius at least ``4 l_u``)."""
 DEPTH_MIN = 0.05
-"""The shallowest source the ratio places, in units of ``l_u`` (grazing light; the ratio is ~1 there anyway)."""
+"""The shallowest source the ratio places, in units of ``l_u``: a source on the surface itself would make both dipoles
+singular at ``d = 0`` (the nodes' own depths are at least 0.1)."""
 
 
 def pair_curvature(delta, normal_x, normal_p):
