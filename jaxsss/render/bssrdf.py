@@ -315,14 +315,16 @@ def _diffuse_weights(mus):
     return jnp.sum(hat_weights(jnp.asarray(mu), mus) * (w * mu)[:, None], axis=0)
 
 
-def incident_flux(mus, areas, light_cos, light_irradiance, indirect=None, texture=None, tangent=None):
+def incident_flux(mus, areas, light_cos, light_irradiance, indirect=None, texture=None, tangent=None,
+                  tangent_weight=None):
     """``(N, K, C)`` incident flux of each irradiance sample split over the angle nodes ``mus``, W; with
     ``tangent`` ``(N, 4, K, C)``, the flux and the flux-weighted tangential travel directions.
 
     ``Phi_pk = A_p t_p (sum_l h_k(cos_lp) E_lp + d_k E_ind)``: no Fresnel factor (the white tables are per incident
     photon, entry transmittance included); ``d_k`` are the diffuse weights. ``V_pk = A_p t_p sum_l h_k(cos_lp) E_lp
     v_lp`` with ``tangent`` ``v`` ``(N, L, 3)``: each light's travel direction inside projected on the surface
-    (length ``sin theta_t``; diffuse light has none). Other arguments as
+    (length ``sin theta_t``; diffuse light has none), each weighted by ``tangent_weight`` ``(N, L, C)`` when given
+    (the travel a short chord allows, :func:`jaxsss.render.passage.truncated_travel`). Other arguments as
     :func:`jaxsss.render.radiance.transmitted_flux`."""
     h = hat_weights(jnp.clip(light_cos, 0.0, 1.0), mus)  # (N, L, K)
     e = jnp.einsum("nlk,nlc->nkc", h, light_irradiance)
@@ -331,7 +333,8 @@ def incident_flux(mus, areas, light_cos, light_irradiance, indirect=None, textur
     scale = areas[:, None, None] * (1.0 if texture is None else texture[:, None, :])
     if tangent is None:
         return scale * e
-    v = jnp.einsum("nlk,nlc,nlj->njkc", h, light_irradiance, tangent)
+    travel = light_irradiance if tangent_weight is None else light_irradiance * tangent_weight
+    v = jnp.einsum("nlk,nlc,nlj->njkc", h, travel, tangent)
     return jnp.concatenate([(scale * e)[:, None], scale[:, None] * v], axis=1)
 
 

@@ -23,7 +23,7 @@ from jaxsss.medium import Medium
 from jaxsss.render import radiance as rad
 from jaxsss.render.bssrdf import (albedo_correction, exit_model_for, incident_flux, shift_reach, surface_tangents,
                                   white_kernel, white_tables)
-from jaxsss.render.passage import interaction_probability
+from jaxsss.render.passage import interaction_probability, truncated_travel
 from jaxsss.render.camera import camera_frame
 from jaxsss.render.methods import Preparation, register_method
 from jaxsss.render.octree import build_octree
@@ -92,11 +92,16 @@ class Prepared(ReflectingPoints):
         indirect = self.indirect_irradiance(medium)
         if self.bssrdf != "dipole":
             irradiance = self.light_irradiance
+            travel = None
             if self.light_chord is not None:
                 g = 0.0 if medium.g is None else medium.g
                 # Uncollided passage: only the light that interacts before its chord ends enters the profile.
                 irradiance = irradiance * interaction_probability(
                     self.light_chord, medium.sigma_a + medium.sigma_s_prime / (1.0 - g))
+                if self.light_tangent is not None:
+                    # The oblique profiles' forward shift, shortened where the chord ends before the half-space's
+                    # mean travel (grazing light on a curved or thin part).
+                    travel = truncated_travel(self.light_chord, medium.sigma_a + medium.sigma_s_prime)
             if self.bssrdf_exit == "chandrasekhar" and len(self.bssrdf_mus) > 1:
                 # Index-matched: the node mix reflects Chandrasekhar's exact total at every incidence cosine.
                 albedo = jnp.broadcast_to(medium.alpha_prime, irradiance.shape[-1:])
@@ -104,7 +109,7 @@ class Prepared(ReflectingPoints):
                 if indirect is not None:
                     indirect = indirect * albedo_correction(None, self.bssrdf_mus, albedo)
             return incident_flux(self.bssrdf_mus, self.areas, self.light_cos, irradiance, indirect,
-                                 self.texture, self.light_tangent)
+                                 self.texture, self.light_tangent, travel)
         return rad.transmitted_flux(medium, self.areas, self.light_cos, self.light_irradiance, indirect,
                                     self.texture)
 

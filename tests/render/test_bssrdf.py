@@ -166,6 +166,14 @@ def test_shifted_pair_is_the_profile_about_the_shifted_entry(skin_kernel):
     np.testing.assert_allclose(got, want, rtol=1e-12)
     # The shift is Monte Carlo's: ~0.8 sin(theta_t) / sigma_t' for skin1's red at 60 degrees (0.853 measured).
     np.testing.assert_allclose(shift[0] / (np.sqrt(0.75) / 0.772), 0.85, atol=0.02)
+    # A short chord's travel weight scales the travel, not the flux: the shift shrinks by the same factor.
+    weight = jnp.array([[[0.25, 0.5, 1.0]]])
+    short = incident_flux(MUS, jnp.array([0.5]), jnp.array([[0.5]]), E, tangent=jnp.asarray(tangent),
+                          tangent_weight=weight)
+    np.testing.assert_array_equal(np.asarray(short[:, 0]), np.asarray(flux[:, 0]))
+    np.testing.assert_allclose(np.asarray(short[:, 1:]), np.asarray(flux[:, 1:]) * np.asarray(weight)[0, 0],
+                               rtol=1e-15)
+    np.testing.assert_allclose(np.asarray(kernel.sources(short))[0, 1, 2], shift * [0.25, 0.5, 1.0], rtol=1e-12)
 
 
 def _scene(material):
