@@ -107,7 +107,8 @@ def truncated_travel(chord, sigma_t_prime):
         sigma_t_prime: ``(C,)`` reduced extinction coefficient, 1/mm.
 
     Returns:
-        ``(N, L, C)`` in ``(0, 1]``, differentiable (a series below ``x = 1e-3``, where the closed form cancels).
+        ``(N, L, C)`` in ``[0, 1]`` (0 for a chord of length 0), differentiable (a series below ``x = 1e-3``, where the
+        closed form cancels).
     """
     finite = jnp.isfinite(chord)[..., None]
     x = sigma_t_prime * jnp.where(finite, chord[..., None], 1.0)
