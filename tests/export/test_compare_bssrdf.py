@@ -56,9 +56,9 @@ def test_default_render_is_within_the_achieved_error_of_the_path_tracer(skin1):
 
 def test_marble_teapot_against_its_path_traced_reference():
     """Marble (albedo ~0.999) on the watertight teapot, eta 1, one point light; Mitsuba 16384 spp (2.2-2.5% pixel
-    noise, which is part of mare_lit here). Achieved (2026-11-27, white-oblique with the curvature ratio and the
-    object's own bounce): mare_lit 0.082 / 0.071 / 0.070, terminator band 0.20 / 0.20 / 0.23 (goal 0.15: missed),
-    sums 1.048 / 1.035 / 1.021 (goal 3%: missed in R and G). Without the bounce (2026-11-24): mare_lit 0.091 / 0.087 /
+    noise, which is part of mare_lit here). Achieved (2026-11-27, white-oblique with the curvature ratio, the
+    object's own bounce, the node depths and the chord-bounded shift): mare_lit 0.080 / 0.070 / 0.069, terminator band
+    0.20 / 0.21 / 0.24 (goal 0.15: missed), sums 1.045 / 1.033 / 1.019 (goal 3%: missed in R and G). Without the bounce (2026-11-24): mare_lit 0.091 / 0.087 /
     0.087, band 0.30 / 0.34 / 0.37, sums 1.026 / 1.014 / 1.002 -- the band 19-31% too dark and the shadowed side
     80-90% too dark, where the lit spout and body light each other in the path tracer; the sums were met only because
     that missing light offset the main term's 2-4% excess on the lit side (docs/path_tracer.md, "The teapot's
