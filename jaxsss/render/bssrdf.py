@@ -90,8 +90,8 @@ from jaxsss.render.curvature import curvature_ratio, pair_curvature
 
 __all__ = ["BSSRDFS", "GRID_PER_DECADE", "OBLIQUE_MUS", "WhiteKernel", "albedo_correction", "chandrasekhar_h",
            "choose_bssrdf", "directional_albedo", "exit_distribution", "exit_radiance_nodes", "hat_weights",
-           "surface_tangents", "incident_flux", "oblique_dir", "oblique_pairs", "oblique_sources", "shift_reach", "WhiteSources",
-           "white_kernel", "white_table", "white_tables"]
+           "surface_tangents", "incident_flux", "oblique_dir", "oblique_pairs", "oblique_sources", "shift_reach",
+           "WhiteSources", "white_kernel", "white_table", "white_tables"]
 
 BSSRDFS = ("auto", "dipole", "white", "white-oblique")
 """The values of the ``bssrdf`` option (``"auto"``: the plan chooses)."""

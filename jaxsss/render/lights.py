@@ -38,8 +38,8 @@ import zlib
 
 import numpy as np
 
-__all__ = ["AREA_KINDS", "COS_BINS", "DELTA_KINDS", "EXTENDED_KINDS", "LightField", "capped_samples", "light_columns",
-           "light_field", "refuse_lights", "spot_factor"]
+__all__ = ["AREA_KINDS", "COS_BINS", "DELTA_KINDS", "EXTENDED_KINDS", "LightField", "capped_samples", "light_channels",
+           "light_columns", "light_field", "refuse_lights", "spot_factor"]
 
 DELTA_KINDS = ("point", "directional", "spot")
 AREA_KINDS = ("sphere", "rectangle")
@@ -47,6 +47,11 @@ EXTENDED_KINDS = (*AREA_KINDS, "environment")
 COS_BINS = 8
 """Columns of an extended light in a :class:`LightField` (bins of the cosine to the normal, equal width in cos)."""
 _CHUNK_RAYS = 1 << 20  # shadow rays per chunk of points (memory: ~100 bytes per ray)
+
+
+def light_channels(lights) -> int:
+    """The channel count ``C`` of the lights' radiance: the longest ``intensity`` (a scalar light is grey, 1)."""
+    return max(np.asarray(light.intensity).size for light in lights)
 
 
 class LightField(NamedTuple):
@@ -300,7 +305,7 @@ def light_field(lights: Sequence, points: np.ndarray, normals: np.ndarray, geome
     """
     points = np.asarray(points, dtype=np.float64)
     normals = np.asarray(normals, dtype=np.float64)
-    n_channels = max(np.asarray(light.intensity).size for light in lights)
+    n_channels = light_channels(lights)
     n_cols = sum(light_columns(light) for light in lights)
     cos = np.zeros((len(points), n_cols))
     irr = np.zeros((len(points), n_cols, n_channels))

@@ -21,7 +21,7 @@ import jax
 import numpy as np
 
 from jaxsss.medium import Medium
-from jaxsss.render.lights import EXTENDED_KINDS
+from jaxsss.render.lights import EXTENDED_KINDS, light_channels
 from jaxsss.render.shading import ShadedPoints
 
 __all__ = ["ReflectingPoints", "mirror_field", "mirror_radiance", "mirror_reflection"]
@@ -73,7 +73,7 @@ def mirror_radiance(lights: Sequence, points: np.ndarray, normals: np.ndarray, t
     if not extended:
         return None
     points, normals, to_eye = (np.asarray(a, dtype=np.float64) for a in (points, normals, to_eye))
-    n_channels = max(np.asarray(light.intensity).size for light in lights)
+    n_channels = light_channels(lights)
     # Mirror direction: r = 2 (n . v) n - v.
     r = 2.0 * np.einsum("ij,ij->i", normals, to_eye)[:, None] * normals - to_eye
     r /= np.maximum(np.linalg.norm(r, axis=1, keepdims=True), 1e-300)

@@ -27,7 +27,7 @@ from typing import NamedTuple
 import numpy as np
 import trimesh
 
-from jaxsss.render.lights import LightField, capped_samples, light_field
+from jaxsss.render.lights import LightField, capped_samples, light_channels, light_field
 from jaxsss.render.octree import MORTON_BITS, morton_codes
 
 __all__ = [
@@ -183,7 +183,7 @@ def _bounce(scene, geometry, points, normals, n_rays: int, seed: int, weight) ->
     dirs = _cosine_directions(normals, n_rays, rng).reshape(-1, 3)
     origins = np.repeat(points + geometry.offset * normals, n_rays, axis=0)
     hits = geometry.first_hit(origins, dirs)
-    n_c = max(np.asarray(light.intensity).size for light in scene.lights)
+    n_c = light_channels(scene.lights)
     out = np.zeros((len(dirs), n_c))
     albedo = weight(hits.obj)
     idx = np.flatnonzero(hits.hit & np.any(albedo > 0, axis=-1))
@@ -203,7 +203,7 @@ def indirect_irradiance(scene, geometry, points, normals, *, n_rays: int = 16, s
     Cosine-weighted rays: ``E = pi * mean(L)``, with ``L = albedo / pi * E_direct(y)`` at an occluder hit ``y``.
     Rays that hit the translucent object itself (:func:`self_irradiance`) or nothing add zero.
     """
-    n_c = max(np.asarray(light.intensity).size for light in scene.lights)
+    n_c = light_channels(scene.lights)
     albedo = np.stack([np.zeros(n_c)] + [np.broadcast_to(np.asarray(o.albedo, dtype=np.float64), (n_c,))
                                          for o in scene.occluders])
 
@@ -224,7 +224,7 @@ def self_irradiance(scene, geometry, points, normals, *, n_rays: int = 16, seed:
     Local approximation: the exitance at a hit is ``rho`` times its own irradiance, not the profile-blurred
     irradiance around it (right where the light varies slowly over ``l_d``; too sharp at shadow edges).
     """
-    n_c = max(np.asarray(light.intensity).size for light in scene.lights)
+    n_c = light_channels(scene.lights)
     return _bounce(scene, geometry, points, normals, n_rays, seed,
                    lambda obj: np.where((obj == 0)[:, None], np.ones(n_c), 0.0))
 
