@@ -86,7 +86,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from jaxsss.medium import Medium
-from jaxsss.render.curvature import curvature_ratio, pair_curvature
+from jaxsss.render.curvature import N_KAPPA, curvature_coordinate, log_ratio_table, pair_curvature
 
 __all__ = ["BSSRDFS", "GRID_PER_DECADE", "OBLIQUE_MUS", "WhiteKernel", "albedo_correction", "chandrasekhar_h",
            "choose_bssrdf", "directional_albedo", "exit_distribution", "exit_radiance_nodes", "hat_weights",
@@ -434,11 +434,14 @@ class WhiteKernel(eqx.Module):
     log_R: jax.Array
     sigma_s: jax.Array
     shift_length: jax.Array | None = None
-    curvature: tuple | None = None  # (sigma_a, sigma_s', A) each (C,), depth (K, C): the curvature ratio's (None: flat)
+    # The curvature table (None: flat): (K (G - 1) (N_KAPPA - 1) C, 4) bilinear coefficients of log(R C) per cell,
+    # sigma_t' (C,) and each node's source depth (K, C) (:func:`white_kernel`).
+    curvature: tuple | None = None
 
-    def profile(self, r):
+    def profile(self, r, kappa=None):
         """``R_k(r)`` in 1/mm^2 at distances ``r`` (mm): ``(P,)`` gives ``(P, K, C)``; ``(P, K, C)`` is evaluated
-        element by element."""
+        element by element. With the pairs' curvature ``kappa`` (1/mm, broadcast against ``(P, K, C)``) and a kernel
+        that carries the curvature table, ``R_k(r) C(r, kappa)`` (:mod:`jaxsss.render.curvature`, "Tabulated")."""
         x0, dx = math.log(GRID_RHO_MIN), math.log(10.0) / GRID_PER_DECADE
         n_k, n_grid, n_c = self.log_R.shape
         if r.ndim == 1:
@@ -446,14 +449,27 @@ class WhiteKernel(eqx.Module):
         x = (jnp.log(jnp.maximum(r * self.sigma_s, GRID_RHO_MIN)) - x0) / dx  # (P, K, C)
         node = jnp.clip(jnp.floor(x), 0.0, n_grid - 2.0)
         t = x - node
-        # One gather of (log R_i, log R_i+1 - log R_i) per element from the flattened (K, G - 1, C) intervals.
-        slope = self.log_R[:, 1:] - self.log_R[:, :-1]
-        table = jnp.stack([self.log_R[:, :-1], slope], axis=-1).reshape(-1, 2)
         k = jnp.arange(n_k, dtype=jnp.int32)[None, :, None]
         c = jnp.arange(n_c, dtype=jnp.int32)[None, None, :]
-        y = table[(k * (n_grid - 1) + node.astype(jnp.int32)) * n_c + c]
-        # Linear interpolation of log R in log(r sigma_s); R = sigma_s^2 R_optical.
-        return jnp.exp(y[..., 0] + t * y[..., 1]) * self.sigma_s**2
+        cell = k * (n_grid - 1) + node.astype(jnp.int32)
+        if kappa is None or self.curvature is None:
+            # One gather of (log R_i, log R_i+1 - log R_i) per element from the flattened (K, G - 1, C) intervals.
+            slope = self.log_R[:, 1:] - self.log_R[:, :-1]
+            table = jnp.stack([self.log_R[:, :-1], slope], axis=-1).reshape(-1, 2)
+            y = table[cell * n_c + c]
+            # Linear interpolation of log R in log(r sigma_s).
+            log_r = y[..., 0] + t * y[..., 1]
+        else:
+            coefficients, sigma_t_prime, _ = self.curvature
+            u = curvature_coordinate(kappa, r, sigma_t_prime)
+            j = jnp.clip(jnp.floor(u), 0.0, N_KAPPA - 2.0)
+            w = u - j
+            # One gather of the cell's four bilinear coefficients of log(R C) from the (K, G - 1, N - 1, C) cells.
+            y = coefficients[(cell * (N_KAPPA - 1) + j.astype(jnp.int32)) * n_c + c]
+            # Bilinear interpolation of log(R C) in (log(r sigma_s), the curvature coordinate).
+            log_r = y[..., 0] + t * y[..., 1] + w * (y[..., 2] + t * y[..., 3])
+        # R = sigma_s^2 R_optical.
+        return jnp.exp(log_r) * self.sigma_s**2
 
     def value_shape(self, flux_shape):
         return tuple(flux_shape[-2:])
@@ -480,14 +496,10 @@ class WhiteKernel(eqx.Module):
         """``R_k(r)`` ``(P, K, C)``, times the curvature ratio of :mod:`jaxsss.render.curvature` when the kernel has
         one and the pairs' normals ``(n_x, n_P)`` (each ``(P, 3)``) are given, at each node's distance ``r`` (from
         its shifted point of entry: the ratio's dipole sits below it)."""
-        if r.ndim == 1:
-            r = jnp.broadcast_to(r[:, None, None], (r.shape[0],) + self.log_R.shape[:1] + self.log_R.shape[-1:])
-        out = self.profile(r)
         if self.curvature is None or normals is None:
-            return out
-        kappa = pair_curvature(delta, *normals)[:, None, None]
+            return self.profile(r)
         # Half-space profile x the sphere-to-plane diffusion ratio of the pair's curvature.
-        return out * curvature_ratio(r, kappa, *self.curvature)
+        return self.profile(r, pair_curvature(delta, *normals)[:, None, None])
 
     def pair(self, delta, sources, normals=None):
         """``(P, K, C)``: ``R_k(|delta - s_k|) F_k`` for offsets ``delta = x - P`` ``(P, 3)`` mm and the entities'
@@ -574,14 +586,26 @@ def white_kernel(medium: Medium, sources: WhiteSources, mus: tuple = (1.0,) + KE
     kernel = _white_kernel(medium, sources, mus, shift)
     if not curvature:
         return kernel
+    return eqx.tree_at(lambda k: k.curvature, kernel, _curvature_table(kernel, medium, jnp.asarray(mus)),
+                       is_leaf=lambda x: x is None)
+
+
+@eqx.filter_jit
+def _curvature_table(kernel: WhiteKernel, medium: Medium, mus) -> tuple:
+    """:attr:`WhiteKernel.curvature` for ``kernel``'s profiles of ``medium`` at incidence cosines ``mus``."""
     c = kernel.sigma_s.shape
-    params = tuple(jnp.broadcast_to(jnp.asarray(v, kernel.sigma_s.dtype), c)
-                   for v in (medium.sigma_a, medium.sigma_s_prime, medium.A))
+    sigma_a, sigma_s_prime, A = (jnp.broadcast_to(jnp.asarray(v, kernel.sigma_s.dtype), c)
+                                 for v in (medium.sigma_a, medium.sigma_s_prime, medium.A))
     # Each node's source at its refracted cosine mu_t (in units of l_u): (K, C).
-    mu = jnp.asarray(mus, kernel.sigma_s.dtype)[:, None]
     eta = jnp.broadcast_to(jnp.asarray(medium.eta, kernel.sigma_s.dtype), c)
-    depth = jnp.sqrt(jnp.maximum(1.0 - (1.0 - mu * mu) / (eta * eta), 0.0))
-    return eqx.tree_at(lambda k: k.curvature, kernel, params + (depth,), is_leaf=lambda x: x is None)
+    depth = jnp.sqrt(jnp.maximum(1.0 - (1.0 - mus[:, None] ** 2) / (eta * eta), 0.0))
+    n_grid = kernel.log_R.shape[1]
+    r = GRID_RHO_MIN * 10.0 ** (jnp.arange(n_grid) / GRID_PER_DECADE)[:, None] / kernel.sigma_s  # (G, C) mm
+    # log(R C) on the grid x the curvature nodes, (K, G, N, C); its bilinear coefficients per cell.
+    f = kernel.log_R[:, :, None, :] + log_ratio_table(r, sigma_a, sigma_s_prime, A, depth)
+    f00, f10, f01, f11 = f[:, :-1, :-1], f[:, 1:, :-1], f[:, :-1, 1:], f[:, 1:, 1:]
+    coefficients = jnp.stack([f00, f10 - f00, f01 - f00, f11 - f10 - f01 + f00], axis=-1).reshape(-1, 4)
+    return coefficients, sigma_a + sigma_s_prime, depth
 
 
 @eqx.filter_jit

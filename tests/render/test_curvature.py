@@ -8,7 +8,17 @@ import numpy as np
 import pytest
 
 from jaxsss import Medium
-from jaxsss.render.curvature import DEPTH_MIN, KAPPA_MAX_ZR, _sphere_exitance, curvature_ratio, pair_curvature
+from jaxsss.render.curvature import (
+    DEPTH_MIN,
+    KAPPA_MAX_ZR,
+    N_KAPPA,
+    _sphere_exitance,
+    curvature_coordinate,
+    curvature_ratio,
+    kappa_cap,
+    log_ratio_table,
+    pair_curvature,
+)
 from tests.gradcheck import assert_grad_matches_fd
 
 SKIN1_A = np.array([0.032, 0.17, 0.48])
@@ -189,6 +199,42 @@ def test_gradients_match_finite_differences():
         return jnp.sum(curvature_ratio(jnp.array([0.5, 3.0, 9.0]), 1 / 15, p[0], p[1], p[2], 0.3) ** 2)
 
     assert_grad_matches_fd(g, np.array([0.05, 1.2, 2.5]), rtol=1e-6)
+
+
+def test_the_table_holds_the_ratio_at_its_nodes():
+    """``log_ratio_table`` is ``log C`` at ``(r_g, u_j kappa_cap(r_g))``, 0 at ``j = 0`` (the flat profile), and the
+    curvature coordinate of a node's curvature is its index; shapes ``(K, G, N_KAPPA, C)``."""
+    r = np.geomspace(0.01, 40.0, 23)[:, None] * np.array([1.0, 1.3, 0.7])  # (G, C)
+    depth = np.array([[1.0, 1.0, 1.0], [0.5, 0.5, 0.5], [0.1, 0.2, 0.3]])
+    A = _A(1.4)
+    table = np.asarray(log_ratio_table(jnp.asarray(r), SKIN1_A, SKIN1_S, A, jnp.asarray(depth)))
+    assert table.shape == (3, 23, N_KAPPA, 3)
+    np.testing.assert_array_equal(table[:, :, 0], 0.0)
+    j = np.arange(N_KAPPA)
+    u = 1 - (1 - j / (N_KAPPA - 1)) ** 2
+    kappa = u[:, None] * np.asarray(kappa_cap(r, SKIN1_A + SKIN1_S))[:, None, :]  # (G, N, C)
+    for k in range(3):
+        direct = np.asarray(curvature_ratio(r[:, None, :], kappa, SKIN1_A, SKIN1_S, A, depth[k]))
+        np.testing.assert_allclose(table[k], np.log(direct), atol=1e-12)
+    np.testing.assert_allclose(curvature_coordinate(kappa, r[:, None, :], SKIN1_A + SKIN1_S),
+                               np.broadcast_to(j[:, None], kappa.shape), atol=1e-9)
+    # Concave pairs sit at the flat node, curvatures beyond the cap at the last.
+    assert float(curvature_coordinate(-0.2, 3.0, 1.0)) == 0.0
+    assert float(curvature_coordinate(5.0, 3.0, 1.0)) == N_KAPPA - 1
+    # At and beyond the cap the coordinate's derivative is 0, not NaN (sqrt(1 - u) at u = 1).
+    for kappa in (0.25, 5.0):
+        assert float(jax.grad(lambda st: curvature_coordinate(kappa, 3.0, st))(1.0)) == 0.0
+
+
+@pytest.mark.parametrize("sa, ss, A", [(0.0, 1.0, 1.0), (1e-9, 1e4, 3.0), (1e3, 1e-3, 1.0), (1e-4, 1e-4, 2.0)])
+def test_the_table_is_finite_for_extreme_media(sa, ss, A):
+    r = np.geomspace(1e-6, 1e3, 30)[:, None]
+    depth = np.array([[1.0], [0.1]])
+    table = np.asarray(log_ratio_table(jnp.asarray(r), jnp.array([sa]), jnp.array([ss]), jnp.array([A]), depth))
+    assert np.all(np.isfinite(table)), table
+    g = jax.grad(lambda p: jnp.sum(log_ratio_table(jnp.asarray(r), p[:1], p[1:], jnp.array([A]), depth)))(
+        jnp.array([sa, ss]))
+    assert np.all(np.isfinite(np.asarray(g))), g
 
 
 @pytest.fixture(scope="module")
