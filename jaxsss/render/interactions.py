@@ -198,6 +198,10 @@ def _traverse_chunk(t: _Tables, x: np.ndarray, eps: float, r_cut: float | None, 
     return key
 
 
+_MIN_CHUNK = 256
+"""The fewest queries :func:`build_interactions` gives a thread (below it the per-chunk overhead dominates)."""
+
+
 def _default_threads() -> int:
     try:
         return max(1, len(os.sched_getaffinity(0)))
@@ -252,6 +256,9 @@ def build_interactions(
     t = _tables(octree)
     n_q = x.shape[0]
     code = octree.point_codes(x)
+    # Fewer queries than one chunk per thread: split them evenly, so that every core traverses (the 128 x 128 skin1
+    # sphere has 2,024 queries, one default chunk: 0.22-0.27 s on one thread, 0.14-0.15 s split over 2 cores).
+    chunk_size = min(chunk_size, max(_MIN_CHUNK, -(-n_q // n_threads)))
 
     def run(q0: int):
         sl = slice(q0, q0 + chunk_size)

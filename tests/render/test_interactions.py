@@ -166,6 +166,23 @@ def test_sorted_int32_and_deterministic(scene):
         np.testing.assert_array_equal(other.entity, ref.entity)
 
 
+def test_few_queries_are_split_over_the_threads(scene, monkeypatch):
+    """Fewer queries than a chunk per thread are split evenly over the threads (every core traverses), with the same
+    result."""
+    import jaxsss.render.interactions as mod
+
+    tree, x = scene
+    ref = build_interactions(tree, x, 0.05, n_threads=1)
+    chunks = []
+    traverse = mod._traverse_chunk
+    monkeypatch.setattr(mod, "_traverse_chunk", lambda t, xs, *a: chunks.append(len(xs)) or traverse(t, xs, *a))
+    monkeypatch.setattr(mod, "_MIN_CHUNK", 1)
+    other = build_interactions(tree, x, 0.05, n_threads=2)
+    assert sorted(chunks) == [len(x) // 2, -(-len(x) // 2)], chunks  # threads may finish in any order
+    np.testing.assert_array_equal(other.query, ref.query)
+    np.testing.assert_array_equal(other.entity, ref.entity)
+
+
 def test_frontier_splitting_and_wide_keys_match(scene, monkeypatch):
     """Splitting the frontier (bounded temporaries) and int64 sort keys do not change the result."""
     import jaxsss.render.interactions as mod
