@@ -24,6 +24,7 @@ from jaxsss.render.bssrdf import (
     hat_weights,
     incident_flux,
     oblique_sources,
+    refracted_exit_distribution,
     surface_tangents,
     white_kernel,
     white_table,
@@ -90,6 +91,45 @@ def test_exit_distribution_conserves_the_exitance(albedo):
     np.testing.assert_allclose(np.einsum("q,qkc->kc", 2.0 * w * mu_o, X), 1.0, rtol=1e-5)
     # Grazing light leaves more of it at grazing angles than normal light does (the 1 / (mu_o + mu_i) factor).
     assert X[0, -1, 0] > X[0, 0, 0]
+
+
+@pytest.mark.parametrize("albedo, eta", [(0.4, 1.3), (0.95, 1.3), (0.68, 1.4), (0.999, 1.55)])
+def test_refracted_exit_conserves_the_exitance(albedo, eta):
+    x, w = np.polynomial.legendre.leggauss(400)
+    mu_o, w = 0.5 * (x + 1.0), 0.5 * w
+    Y = np.asarray(refracted_exit_distribution(jnp.asarray(mu_o), jnp.asarray(MUS), jnp.array([albedo]), eta))
+    # int_0^1 Y 2 mu dmu = 1 (its own 32-node normalisation against a 400-node rule).
+    np.testing.assert_allclose(np.einsum("q,qkc->kc", 2.0 * w * mu_o, Y), 1.0, rtol=1e-4)
+    assert np.all(np.isfinite(Y)) and np.all(Y >= 0)
+
+
+def test_refracted_exit_is_chandrasekhars_at_a_matched_boundary():
+    mu_o = jnp.linspace(0.01, 1.0, 21)  # (F_t at eta = 1 is 0 exactly at grazing: the renderer uses X itself there)
+    albedo = jnp.array([0.3, 0.9, 0.999])
+    np.testing.assert_allclose(refracted_exit_distribution(mu_o, jnp.asarray(MUS), albedo, 1.0),
+                               exit_distribution(mu_o, jnp.asarray(MUS), albedo), rtol=2e-6)
+
+
+def test_refracted_exit_grazing_views_by_albedo():
+    """Through a dielectric (eta 1.4) a weakly scattering channel sends more light to grazing views than a
+    Lambertian exit through the same boundary (``F_t``), a strongly scattering one less."""
+    from jaxsss.fresnel import fresnel_unpolarised
+
+    mu = jnp.array([0.05, 1.0])
+    Y = np.asarray(refracted_exit_distribution(mu, jnp.array([1.0]), jnp.array([0.3, 0.999]), 1.4))[:, 0]
+    f_t = 1.0 - np.asarray(fresnel_unpolarised(mu, 1.4))
+    lambertian = f_t[0] / f_t[1]
+    assert Y[0, 0] / Y[1, 0] > 1.1 * lambertian
+    assert Y[0, 1] / Y[1, 1] < 0.99 * lambertian  # 0.976: inside, the grazing view is mu_t = 0.71
+
+
+def test_refracted_exit_gradients():
+    mu_o = jnp.array([0.05, 0.4, 0.9])
+
+    def f(p):
+        return jnp.sum(refracted_exit_distribution(mu_o, jnp.asarray(MUS), p[:2], p[2]) ** 2)
+
+    assert_grad_matches_fd(f, np.array([0.6, 0.97, 1.35]), rtol=1e-5)
 
 
 def test_hat_weights_interpolate_linearly():
