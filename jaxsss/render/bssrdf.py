@@ -435,9 +435,9 @@ def refracted_exit_distribution(mu_o, mu_i, albedo, eta):
     to the exitance (32-node Gauss-Legendre). At ``eta = 1`` it is ``X`` itself. The internal reflection's own
     blurring of the inside distribution is left out. It carries what a Lambertian exit cannot: light of a weakly
     scattering channel leaves a dielectric towards grazing views brighter (its low orders), that of a strongly
-    scattering one darker. Against Mitsuba's skin1 sphere under a sky at eta 1.3 the Lambertian exit was 6-7% too dark
-    in blue at the limb and 2-4% too bright at the centre; with ``Y`` the error is flat across the disc
-    (docs/path_tracer.md, "The exit through a dielectric boundary").
+    scattering one darker. Against Mitsuba's skin1 sphere under a sky (eta 1.3 and 1.4) the Lambertian exit was
+    6.0-7.4% too dark in blue at the limb and 2-4% too bright at the centre; with ``Y`` the error is flat across the
+    disc (docs/path_tracer.md, "The exit through a dielectric boundary").
 
     ``mu_o`` ``(Q,)`` (outside), ``mu_i`` ``(K,)`` incidence cosines in air, ``albedo`` ``(C,)``, scalar ``eta``: ``(Q,
     K, C)``."""
