@@ -22,7 +22,10 @@ fully covered pixels (``mare_lit``); rows also carry ``mare_lit``, ``mare_band``
 (``reference_noise_mare`` in the summary, about 1/sqrt(ref_spp / spp) of it).
 
 Outputs: ``render_vs_path_tracer.json`` / ``.png`` (error against seconds) and ``render_vs_path_tracer_maps.png``
-(per scene: reference, jaxsss hierarchical, and its signed relative error per channel).
+(per scene: reference, jaxsss hierarchical, and its signed relative error per channel). The summary's
+``equal_error`` per scene (:func:`equal_error`, also printed): the seconds Mitsuba needs for the error of jaxsss's
+own choice of kernel (hierarchical, eps 0.05), by the line through its two highest-spp rows and at ``1/sqrt(spp)``,
+and the ratios to jaxsss's seconds.
 
 ``--references`` regenerates the references instead (slow: minutes per scene at ``REFERENCE_SPP`` with the LLVM
 variant; run it under ``nice``). Mitsuba runs with ``llvm_ad_rgb`` when ``DRJIT_LIBLLVM_PATH`` names a libLLVM
@@ -32,6 +35,7 @@ variant; run it under ``nice``). Mitsuba runs with ``llvm_ad_rgb`` when ``DRJIT_
 from __future__ import annotations
 
 import json
+import math
 import os
 import shlex
 import sys
@@ -182,6 +186,29 @@ def _mitsuba_rows(name, scene, ref, coverage, pixels, spps):
     return rows
 
 
+def equal_error(jaxsss_row: dict, mitsuba_rows: list) -> dict:
+    """Mitsuba's seconds at jaxsss's error, and the ratio: the line through the two highest-spp Mitsuba rows in log
+    error against log seconds, and the same from the highest row at the Monte Carlo rate ``error ~ 1/sqrt(spp)``.
+
+    Args:
+        jaxsss_row: one jaxsss row (``error``, ``seconds``).
+        mitsuba_rows: the scene's Mitsuba rows at two or more spp.
+
+    Returns:
+        ``error``, ``seconds``; ``slope`` of the line; ``mitsuba_seconds`` and ``ratio`` by the line;
+        ``mitsuba_seconds_sqrt`` and ``ratio_sqrt`` at ``1/sqrt(spp)``. A ratio above 1: jaxsss is faster.
+    """
+    if len(mitsuba_rows) < 2:
+        raise ValueError(f"equal_error(mitsuba_rows=...) has {len(mitsuba_rows)} rows; it needs at least 2")
+    a, b = sorted(mitsuba_rows, key=lambda r: r["seconds"])[-2:]
+    e, t = jaxsss_row["error"], jaxsss_row["seconds"]
+    slope = math.log(b["error"] / a["error"]) / math.log(b["seconds"] / a["seconds"])
+    line = b["seconds"] * (e / b["error"]) ** (1.0 / slope)
+    sqrt = b["seconds"] * (b["error"] / e) ** 2
+    return {"error": e, "seconds": t, "slope": slope, "mitsuba_seconds": line, "ratio": line / t,
+            "mitsuba_seconds_sqrt": sqrt, "ratio_sqrt": sqrt / t}
+
+
 def _error_vs_seconds(rows, path):
     """One panel per scene: error (max over RGB of mare_lit) against seconds, Mitsuba's spp sweep as a line, each
     jaxsss row as a labelled marker (the harness's single panel is unreadable with six scenes)."""
@@ -256,6 +283,7 @@ def main(argv=None) -> int:
     from benchmarks._harness import parse_args, write_results
     from jaxsss.export import mitsuba as xm
     from jaxsss.export.compare import error_by_cos, error_map, pixel_geometry
+    from jaxsss.render import make_plan
 
     args = parse_args(argv, __doc__.splitlines()[0])
     cfg = CONFIG["quick" if args.quick else "full"]
@@ -269,8 +297,13 @@ def main(argv=None) -> int:
         for kernel in ("dipole", "white-oblique"):
             hier = images[next(k for k in images if k.startswith("hierarchical") and k.endswith(" " + kernel))]
             panels.append((f"{name} {kernel}", ref, hier, error_map(hier, ref, pixels, coverage=coverage)))
+        # The plan's own kernel ("auto") at the default eps, against Mitsuba at equal error.
+        auto = make_plan(scene, method="hierarchical").bssrdf
+        row = next(r for r in jrows if r["setting"] == f"hierarchical eps=0.05 {auto}")
         summary[name] = {"reference_spp": meta["spp"], "reference_seconds": meta["seconds"],
                          "reference_noise_mare": meta["noise_mare_lit"],
+                         "equal_error": {"setting": row["setting"], **equal_error(
+                             row, [r for r in rows if r["scene"] == name and r["renderer"] == "mitsuba"])},
                          "jaxsss_error_by_cos": {label: error_by_cos(img, ref, pixels, coverage=coverage)
                                                  for label, img in images.items()}}
     notes = [f"Mitsuba {variant}; references: tests/export/references/*.json",
@@ -294,6 +327,11 @@ def main(argv=None) -> int:
             for b in bins:
                 print(f"  cos [{b['cos'][0]:+.2f}, {b['cos'][1]:+.2f}] n={b['n']:4d} bias "
                       f"{rnd(b['bias'])} mare {rnd(b['mare'])}")
+    for name in SCENES:
+        q = summary[name]["equal_error"]
+        print(f"{name}: {q['setting']} error {q['error']:.3f} in {q['seconds']:.2f} s; Mitsuba at equal error "
+              f"{q['mitsuba_seconds']:.1f} s (slope {q['slope']:.2f}): {q['ratio']:.1f}x, at 1/sqrt(spp) "
+              f"{q['mitsuba_seconds_sqrt']:.1f} s: {q['ratio_sqrt']:.1f}x")
     print(f"wrote {json_path}, {png_path}, {maps}")
     return 0
 

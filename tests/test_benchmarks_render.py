@@ -109,3 +109,21 @@ def test_render_cache_quick(tmp_path):
     for r in cached:
         assert 0 < r["cache_ratio"] <= 1 and r["speedup"] > 0
         assert 0 <= r["error"] <= r["max_error"] < 0.2 and r["mean_ciede2000"] >= 0
+
+
+def test_equal_error_of_the_path_tracer_comparison():
+    """render_vs_path_tracer's equal-error column: a path tracer whose error falls as 1/sqrt(seconds) (0.2 at 1 s,
+    0.1 at 4 s) reaches 0.05 at 16 s, so a 1-s render with that error is 16x faster, by the line and by 1/sqrt."""
+    from benchmarks.render_vs_path_tracer import equal_error
+
+    mitsuba = [{"error": 0.4, "seconds": 0.25}, {"error": 0.1, "seconds": 4.0}, {"error": 0.2, "seconds": 1.0}]
+    q = equal_error({"error": 0.05, "seconds": 1.0}, mitsuba)
+    assert q["slope"] == pytest.approx(-0.5)
+    assert q["mitsuba_seconds"] == pytest.approx(16.0) and q["ratio"] == pytest.approx(16.0)
+    assert q["ratio_sqrt"] == pytest.approx(16.0)
+    # A path tracer that converges slowly (slope -0.25) needs longer by the line than at 1/sqrt(spp).
+    slow = equal_error({"error": 0.05, "seconds": 2.0}, [{"error": 0.2, "seconds": 1.0},
+                                                           {"error": 0.2 / 2 ** 0.5, "seconds": 4.0}])
+    assert slow["slope"] == pytest.approx(-0.25) and slow["ratio"] > slow["ratio_sqrt"] > 1.0
+    with pytest.raises(ValueError, match="at least 2"):
+        equal_error({"error": 0.05, "seconds": 1.0}, mitsuba[:1])
