@@ -68,7 +68,7 @@ DEPTH_MIN = 0.05
 """The shallowest source the ratio places, in units of ``l_u``: a source on the surface itself would make both dipoles
 singular at ``d = 0`` (the nodes' own depths are at least 0.1)."""
 N_KAPPA = 33
-"""Curvature nodes of :func:`log_ratio_table` (17 left 2-5% at ``kappa d`` near 1 for skin1 at eta 1.4)."""
+"""Curvature nodes of :func:`log_ratio_table` (17 left up to 3.5% at ``kappa d < 1`` in skin1's blue at eta 1.4)."""
 
 
 def pair_curvature(delta, normal_x, normal_p):
