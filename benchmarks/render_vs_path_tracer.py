@@ -298,7 +298,7 @@ def main(argv=None) -> int:
             hier = images[next(k for k in images if k.startswith("hierarchical") and k.endswith(" " + kernel))]
             panels.append((f"{name} {kernel}", ref, hier, error_map(hier, ref, pixels, coverage=coverage)))
         # The plan's own kernel ("auto") at the default eps, against Mitsuba at equal error.
-        auto = make_plan(scene, method="hierarchical").bssrdf
+        auto = make_plan(scene, method="hierarchical", bssrdf="auto").bssrdf
         row = next(r for r in jrows if r["setting"] == f"hierarchical eps=0.05 {auto}")
         summary[name] = {"reference_spp": meta["spp"], "reference_seconds": meta["seconds"],
                          "reference_noise_mare": meta["noise_mare_lit"],
