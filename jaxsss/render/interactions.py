@@ -256,7 +256,7 @@ def build_interactions(
     t = _tables(octree)
     n_q = x.shape[0]
     code = octree.point_codes(x)
-    # Fewer queries than one chunk per thread: split them evenly, so that every core traverses (the 128 x 128 skin1
+    # Fewer queries than one chunk per thread: split them evenly, so that every core traverses (the 64 x 64 skin1
     # sphere has 2,024 queries, one default chunk: 0.22-0.27 s on one thread, 0.14-0.15 s split over 2 cores).
     chunk_size = min(chunk_size, max(_MIN_CHUNK, -(-n_q // n_threads)))
 
