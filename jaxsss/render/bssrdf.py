@@ -61,7 +61,8 @@ Curvature (``"white*"``). The profiles are a half-space's; on a convex object mo
 it entered (the 20 mm skin1 sphere gives 12-15% more red light under a sky at eta 1.4 than its flat limit, measured
 in Mitsuba by scaling the coefficients). Each pair's profile is multiplied by the diffusion dipole's sphere-to-plane
 ratio at the pair's curvature, estimated from the two normals (:mod:`jaxsss.render.curvature`; octree nodes carry
-their area-weighted mean normal, :attr:`jaxsss.render.renderer.Prepared.ent_normal`). The dipole kernel stays flat
+their area-weighted mean normal, :attr:`jaxsss.render.renderer.Prepared.ent_normal`), interpolated with the profile
+from a table made once per image (:func:`white_kernel`, ``curvature=True``). The dipole kernel stays flat
 (it is the pre-issue-17 renderer).
 
 Passage (``"white*"``). A half-space takes in all the light that enters it; on a curved or thin part light entering
