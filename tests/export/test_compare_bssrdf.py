@@ -78,7 +78,8 @@ def test_marble_teapot_against_its_path_traced_reference():
     assert band["n"] > 30 and np.all(np.abs(band["bias"]) <= 0.15), band
 
 
-def test_skin1_at_its_own_eta_under_a_sky_against_its_path_traced_reference():
+@pytest.mark.parametrize("name", ["skin1_sphere_env13", "skin1_sphere_env"])
+def test_skin1_at_a_dielectric_boundary_under_a_sky_against_its_path_traced_reference(name):
     """skin1 at eta 1.3 (its table value) under skin1_sphere_env's sky: a pair that only the white Monte Carlo family
     covers (oblique nodes from the ratio of the tabulated n = 1.33), against a 32768-spp Mitsuba reference (924 s;
     its own noise 3.3 / 2.6 / 2.9% per pixel, part of mare_lit here). Achieved (2026-11-27, with Chandrasekhar's exit
@@ -88,12 +89,14 @@ def test_skin1_at_its_own_eta_under_a_sky_against_its_path_traced_reference():
     0.979, blue +2.9% at the centre and -7.4% at the limb. Without the curvature ratio both were 5-12% too dark:
     mare_lit 0.119 / 0.082 / 0.067, sums 0.884 / 0.929 / 0.955 (docs/path_tracer.md, "Curvature"). Before the family,
     auto fell back to the dipole plus single scattering: mare_lit 0.102 / 0.374 / 0.657, sums 1.120 / 1.401 / 1.661.
-    Bounds: the goal (mare_lit 5%, sums 3%); the dipole fails them; blue's centre-to-limb change within 4 points (10
-    with the Lambertian exit)."""
+    The same sky at eta 1.4 (``skin1_sphere_env``, 65536 spp, noise 2.6 / 1.9 / 2.1%): 0.035 / 0.030 / 0.040, sums
+    1.014 / 0.998 / 0.979, blue -3.2% at the centre and -2.7% at the limb (Lambertian exit: 0.037 / 0.036 / 0.044,
+    +2.1% and -6.0%). Bounds for both: the goal (mare_lit 5%, sums 3%); blue's centre-to-limb change within 4 points
+    (8-10 with the Lambertian exit); at eta 1.3 the dipole fails the sums."""
     from jaxsss.export.compare import error_map
 
-    scene = load_scene(REFERENCES / "skin1_sphere_env13.toml")
-    data = np.load(REFERENCES / "skin1_sphere_env13.npz")
+    scene = load_scene(REFERENCES / f"{name}.toml")
+    data = np.load(REFERENCES / f"{name}.npz")
     ref, coverage = data["image"].astype(np.float64), data["coverage"].astype(np.float64)
     result = render(scene)
     plan = result.report["plan"]
@@ -110,5 +113,6 @@ def test_skin1_at_its_own_eta_under_a_sky_against_its_path_traced_reference():
     radius = np.hypot(yy - cy, xx - cx) / np.hypot(yy - cy, xx - cx)[pixels.hit].max()
     centre, limb = np.nanmean(err[pixels.hit & (radius < 0.3)]), np.nanmean(err[pixels.hit & (radius >= 0.9)])
     assert abs(centre - limb) <= 0.04, (centre, limb)
-    old = compare_images(render(scene, bssrdf="dipole").image, ref, pixels, coverage=coverage)
-    assert np.all(np.abs(np.array(old["sum_ratio"]) - 1.0) > 0.03), old["sum_ratio"]
+    if name == "skin1_sphere_env13":
+        old = compare_images(render(scene, bssrdf="dipole").image, ref, pixels, coverage=coverage)
+        assert np.all(np.abs(np.array(old["sum_ratio"]) - 1.0) > 0.03), old["sum_ratio"]
