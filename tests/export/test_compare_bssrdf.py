@@ -1,23 +1,16 @@
-"""jaxsss's default renderer against the committed Mitsuba reference (tests/export/references/skin1_sphere): a test
-that fails when the image error grows.
+"""jaxsss's default renderer against committed Mitsuba references (tests/export/references): tests that fail when the
+image error grows.
 
-The scene: skin1 (Jensen 2001) on a 20 mm sphere, eta = 1, g = 0, one point light, 64 x 64; the reference is
-Mitsuba 3's volpathmis at 8192 spp (1.1-1.9% per-pixel noise; its .json sidecar). The default kernel for this medium
-is ``white-oblique`` (jaxsss.render.bssrdf) with the curvature ratio of the pairs (jaxsss.render.curvature). Goals
-of issue 17: mare_lit <= 5% per channel, <= 15% in the terminator band, summed radiance within 3%. Achieved
-(2026-11-27, with the curvature ratio, the uncollided passage of jaxsss.render.passage and the near list reaching
-past the kernel's shift, jaxsss.render.bssrdf.shift_reach): mare_lit 0.060 / 0.051 / 0.049, band 0.145 / 0.132 /
-0.140, sums 1.021 / 1.026 / 1.024. Met: mare_lit in B, the band and the sum in every channel. Missed: mare_lit in R
-and G by 1.0 and 0.1 points. (Before the near list reached past the shift the hierarchical sum was 0.056 / 0.048 /
-0.049, band 0.124 / 0.114 / 0.139: closer to Mitsuba, but further from its own direct sum, 0.060 / 0.051 / 0.049,
-which it now matches.) History: with the curvature ratio alone (2026-11-24) 0.065 /
-0.052 / 0.050, band 0.169 / 0.138 / 0.147 (the ratio made the lit side +1-3% too bright and the terminator brighter
-still; docs/path_tracer.md, "Curvature"); before it (2026-11-23) 0.057 / 0.043 / 0.044, band 0.100 / 0.116 / 0.142,
-sums 0.966 / 0.991 / 1.008. The passage removes the grazing light that runs through the sphere's cap near the
-terminator (4.5% of red's at cos 0.1, more below). Where the goal is met the test asserts the goal; where it is
-missed, the achieved level plus about 10% (the render is deterministic: the margin is for platform rounding and
-future table regeneration, not noise). The dipole plus single scattering (the old kernel) fails every bound: 0.138 /
-0.181 / 0.225, band 0.28-0.38, sums 1.12-1.23.
+The scenes: skin1 (Jensen 2001) on a 20 mm sphere at eta = 1 under one point light (8192 spp, 1.1-1.9% per-pixel
+noise), and at eta 1.3 and 1.4 under a sky; marble on the watertight teapot at eta 1 (16384 spp). Ketchup's sphere is
+tested in tests/render/test_passage.py. The default kernel is ``white-oblique`` (jaxsss.render.bssrdf) with the
+curvature ratio of the pairs (jaxsss.render.curvature), the uncollided passage and the chord-bounded shift
+(jaxsss.render.passage), and at a dielectric boundary the refracted Chandrasekhar exit. Goals of issue 17: mare_lit
+<= 5% per channel, <= 15% in the terminator band, summed radiance within 3%. Where a goal is met the test asserts the
+goal; where it is missed, the achieved level plus about 10% (the render is deterministic: the margin is for platform
+rounding and future table regeneration, not noise). Each test's docstring gives the achieved numbers and their
+history (docs/path_tracer.md has the measurements). The dipole plus single scattering (the old kernel) fails every
+bound on skin1: 0.138 / 0.181 / 0.225, band 0.28-0.38, sums 1.12-1.23.
 """
 
 from pathlib import Path
@@ -45,6 +38,8 @@ def skin1():
 
 
 def test_default_render_is_within_the_achieved_error_of_the_path_tracer(skin1):
+    """skin1 at eta 1 under a point light: every goal met (the bounds and their history are the constants above;
+    before the curvature ratio, the passage and the node depths: docs/path_tracer.md)."""
     scene, ref, coverage, pixels = skin1
     result = render(scene)
     assert result.report["plan"]["bssrdf"] == "white-oblique"
