@@ -92,7 +92,8 @@ from jaxsss.render.curvature import N_KAPPA, curvature_coordinate, log_ratio_tab
 __all__ = ["BSSRDFS", "GRID_PER_DECADE", "OBLIQUE_MUS", "WhiteKernel", "albedo_correction", "chandrasekhar_h",
            "choose_bssrdf", "directional_albedo", "exit_distribution", "exit_radiance_nodes", "hat_weights",
            "refracted_exit_distribution", "surface_tangents", "incident_flux", "oblique_dir", "oblique_pairs",
-           "oblique_sources", "shift_reach", "WhiteSources", "white_kernel", "white_table", "white_tables"]
+           "oblique_sources", "shift_reach", "WHITE_DENSITY", "WhiteSources", "white_kernel", "white_table",
+           "white_tables"]
 
 BSSRDFS = ("auto", "dipole", "white", "white-oblique")
 """The values of the ``bssrdf`` option (``"auto"``: the plan chooses)."""
@@ -123,6 +124,14 @@ CURVATURE_WHY = ("the surface's curvature per pair (jaxsss.render.curvature: a c
                  "1 - exp(-sigma_t chord); grazing light on curved or thin parts)")
 """What the plan says of the white kernels' geometry terms: the curvature ratio (always on: 1 on a plane, one ratio
 per pair) and the uncollided passage (always on: 1 where a light's refracted ray never leaves the object)."""
+WHITE_DENSITY = 2.0
+"""The white kernels' irradiance samples per ``pi l_u^2`` (the paper's dipole: 1; the scene's ``density`` multiplies
+both). The near field spreads each pair's ``w R`` over ``rho_0`` = four sample radii, about ``2 l_u``, and that blur
+shows where ``R`` is narrow and the light has a kink: the terminator of an absorbing channel. Against Mitsuba (mare_lit;
+band; docs/path_tracer.md, "Sample density"), density 1 -> 2: skin1 0.042 / 0.043 / 0.044 -> 0.042 / 0.038 / 0.039,
+band 0.080 / 0.111 / 0.142 -> 0.087 / 0.095 / 0.119; ketchup's blue band 0.166 -> 0.121; the teapot 0.080 / 0.070 /
+0.069 -> 0.077 / 0.065 / 0.063; potato (held out) 0.098 / 0.095 / 0.089 -> 0.082 / 0.070 / 0.055. It costs 15-50% of
+the render's time."""
 MEASURED_DG = 0.45
 """How far in ``g`` from its oblique sources the transfer of the oblique/normal ratio was measured (module docstring)."""
 FORWARD_G = 0.5

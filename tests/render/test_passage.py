@@ -136,8 +136,9 @@ def test_the_terminator_of_the_path_traced_ketchup_sphere():
     one number that rose). With each incidence node's curvature source at its own depth (``mu_t l_u``;
     jaxsss.render.curvature, "Oblique incidence"; later still): band 0.067 / 0.127 / 0.170, mare_lit 0.101 / 0.040 /
     0.049, sums 1.018 / 1.004 / 1.020. With the oblique shift's travel bounded by the chord (``truncated_travel``):
-    band 0.092 / 0.119 / 0.166, mare_lit 0.077 / 0.039 / 0.048, sums 1.015 / 1.002 / 1.019. Red still misses the
-    goal: its sphere is 4.8 transport lengths in radius, and at cos -1 to -0.3 to the light it is 36% too bright (62%
+    band 0.092 / 0.119 / 0.166, mare_lit 0.077 / 0.039 / 0.048, sums 1.015 / 1.002 / 1.019. With the white kernels'
+    sample density 2 (``bssrdf.WHITE_DENSITY``): band 0.099 / 0.108 / 0.121 (the goal met in blue), mare_lit 0.084 /
+    0.040 / 0.046, sums 1.010 / 1.007 / 1.022. Red still misses the goal: its sphere is 4.8 transport lengths in radius, and at cos -1 to -0.3 to the light it is 36% too bright (62%
     before the bound, 108% with one curvature depth; docs/path_tracer.md). Bounds: the achieved level plus about 10%
     (the goal's 3% for the sums), and the passage must beat the half-space in the band of every channel."""
     from jaxsss.export.compare import compare_images, pixel_geometry
@@ -151,8 +152,8 @@ def test_the_terminator_of_the_path_traced_ketchup_sphere():
     result = render(scene)
     pixels = pixel_geometry(scene)
     m = compare_images(result.image, ref, pixels, coverage=coverage)
-    assert np.all(np.array(m["mare_band"]) <= (0.101, 0.131, 0.183)), m["mare_band"]
-    assert np.all(np.array(m["mare_lit"]) <= (0.085, 0.043, 0.053)), m["mare_lit"]
+    assert np.all(np.array(m["mare_band"]) <= (0.109, 0.119, 0.133)), m["mare_band"]
+    assert np.all(np.array(m["mare_lit"]) <= (0.092, 0.044, 0.05)), m["mare_lit"]
     assert np.all(np.abs(np.array(m["sum_ratio"]) - 1.0) <= 0.03), m["sum_ratio"]
     state = result.prepared.state
     half_space = eqx.tree_at(lambda s: s.light_chord, state, jnp.full_like(state.light_chord, jnp.inf))
