@@ -70,7 +70,7 @@ Schema (units: mm, 1/mm, degrees; "3 values" means ``[x, y, z]`` or ``[r, g, b]`
     [render]                  # keys of RenderSettings (defaults there)
     method = "hierarchical"   # hierarchical | direct
     eps = 0.05                # solid-angle threshold (steradians), > 0
-    density = 1.0             # multiplier on the sample density A / (pi l_u^2), > 0
+    density = 1.0             # multiplier on the sample density A / (pi l_u^2) (x2 for the white kernels), > 0
     max_samples = 200000      # >= 1
     photons = 200000          # photons traced by --method photon, >= 1
     tolerance = 1e-3          # relative tolerance for leaving terms out, in [0, 1)
