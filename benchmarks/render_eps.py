@@ -209,7 +209,7 @@ def main(argv=None) -> int:
 
     # Which pixels hit the teapot: the direct method's geometry pass (no interaction lists).
     with compile_clock():
-        geo, plan0, info0 = prepare(scene, method="direct", resolution=res)
+        geo, plan0, info0 = prepare(scene, method="direct", resolution=res, bssrdf="dipole")  # as timed_render
     n_hit = int(geo.n_queries)
     mask, pick = random_pixel_mask(geo.query_pixel, geo.shape, cfg["subset"])
     base_sample_pos = np.asarray(geo.sample_pos)
