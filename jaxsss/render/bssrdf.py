@@ -86,6 +86,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from jaxsss.fresnel import snell_cosine
 from jaxsss.medium import Medium
 from jaxsss.render.curvature import N_KAPPA, curvature_coordinate, log_ratio_table, pair_curvature
 
@@ -454,8 +455,8 @@ def refracted_exit_distribution(mu_o, mu_i, albedo, eta):
     from jaxsss.render.radiance import _transmittance
 
     def inside(mu):
-        # Snell: the refracted cosine inside (eta >= 1: always real).
-        return jnp.sqrt(jnp.maximum(1.0 - (1.0 - mu * mu) / (eta * eta), 0.0))
+        # Snell: the refracted cosine inside (eta >= 1: no total internal reflection).
+        return snell_cosine(mu, eta)[0]
 
     mu_k = inside(jnp.asarray(mu_i))
 
@@ -643,7 +644,7 @@ def _curvature_table(kernel: WhiteKernel, medium: Medium, mus) -> tuple:
                                  for v in (medium.sigma_a, medium.sigma_s_prime, medium.A))
     # Each node's source at its refracted cosine mu_t (in units of l_u): (K, C).
     eta = jnp.broadcast_to(jnp.asarray(medium.eta, kernel.sigma_s.dtype), c)
-    depth = jnp.sqrt(jnp.maximum(1.0 - (1.0 - mus[:, None] ** 2) / (eta * eta), 0.0))
+    depth = snell_cosine(mus[:, None], eta)[0]
     n_grid = kernel.log_R.shape[1]
     r = GRID_RHO_MIN * 10.0 ** (jnp.arange(n_grid) / GRID_PER_DECADE)[:, None] / kernel.sigma_s  # (G, C) mm
     # log(R C) on the grid x the curvature nodes, (K, G, N, C); its bilinear coefficients per cell.
