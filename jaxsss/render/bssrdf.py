@@ -91,7 +91,8 @@ from jaxsss.medium import Medium
 from jaxsss.render.curvature import N_KAPPA, curvature_coordinate, log_ratio_table, pair_curvature
 
 __all__ = ["BSSRDFS", "GRID_PER_DECADE", "OBLIQUE_MUS", "WhiteKernel", "albedo_correction", "chandrasekhar_h",
-           "choose_bssrdf", "directional_albedo", "exit_distribution", "exit_radiance_nodes", "hat_weights",
+           "choose_bssrdf", "directional_albedo", "exit_distribution", "exit_radiance_nodes", "half_space_reflection",
+           "hat_weights",
            "refracted_exit_distribution", "surface_tangents", "incident_flux", "oblique_dir", "oblique_pairs",
            "oblique_sources", "shift_reach", "WHITE_DENSITY", "WhiteSources", "white_kernel", "white_table",
            "white_tables"]
@@ -417,6 +418,22 @@ def albedo_correction(mu, mus, albedo):
     mu = jnp.clip(jnp.asarray(mu), 0.0, 1.0)
     flat = jax.vmap(lambda col: jnp.interp(mu.reshape(-1), grid, col), in_axes=1, out_axes=1)(on_grid)
     return flat.reshape(mu.shape + on_grid.shape[-1:])
+
+
+def half_space_reflection(mu_i, mu_o, albedo):
+    """Chandrasekhar's exact reflection function of a semi-infinite, isotropically scattering, index-matched medium,
+    every scattering order, in 1/sr (Chandrasekhar 1960, Radiative Transfer, chapter IV: a beam of flux ``pi F`` at
+    ``mu_i`` is reflected as ``I_r(mu_o) = (a F / 4) mu_i H(mu_i) H(mu_o) / (mu_i + mu_o)``, and ``E = pi F mu_i``)::
+
+        f_r(mu_i, mu_o) = a H(mu_i) H(mu_o) / (4 pi (mu_i + mu_o))
+
+    ``mu_i``, ``mu_o``: incidence and view cosines in ``(0, 1]``, ``albedo`` ``a`` in ``[0, 1)``; all broadcast. The
+    radiance reflected towards ``mu_o`` under irradiance ``E`` from direction ``mu_i`` is ``E f_r``; it integrates to
+    :func:`directional_albedo` (``tests/render/test_bssrdf.py``). The exact half-space reference of
+    :mod:`jaxsss.export.exact`."""
+    mu_i, mu_o, a = jnp.asarray(mu_i), jnp.asarray(mu_o), jnp.asarray(albedo)
+    # Chandrasekhar's reflection function, isotropic scattering.
+    return a * chandrasekhar_h(mu_i, a) * chandrasekhar_h(mu_o, a) / (4.0 * jnp.pi * (mu_i + mu_o))
 
 
 def exit_distribution(mu_o, mu_i, albedo):

@@ -20,7 +20,9 @@ from jaxsss.render.bssrdf import (
     OBLIQUE_MUS,
     chandrasekhar_h,
     choose_bssrdf,
+    directional_albedo,
     exit_distribution,
+    half_space_reflection,
     hat_weights,
     incident_flux,
     oblique_sources,
@@ -91,6 +93,31 @@ def test_exit_distribution_conserves_the_exitance(albedo):
     np.testing.assert_allclose(np.einsum("q,qkc->kc", 2.0 * w * mu_o, X), 1.0, rtol=1e-5)
     # Grazing light leaves more of it at grazing angles than normal light does (the 1 / (mu_o + mu_i) factor).
     assert X[0, -1, 0] > X[0, 0, 0]
+
+
+@pytest.mark.parametrize("albedo, rtol", [(0.0, 1e-4), (0.3, 1e-4), (0.9585, 1e-4), (0.999, 1e-4),
+                                         (1.0 - 1e-9, 3e-4)])  # (64-node H loses digits as a -> 1)
+def test_half_space_reflection_integrates_to_the_directional_albedo(albedo, rtol):
+    x, w = np.polynomial.legendre.leggauss(400)
+    mu_o, w = 0.5 * (x + 1.0), 0.5 * w
+    mu_i = jnp.asarray(MUS)
+    f = np.asarray(half_space_reflection(mu_i[None, :], jnp.asarray(mu_o)[:, None], albedo))  # (Q, K)
+    assert f.shape == (400, len(MUS)) and np.all(np.isfinite(f)) and np.all(f >= 0)
+    # 2 pi int_0^1 f_r mu_o dmu_o = A(mu_i), Chandrasekhar's albedo of every order.
+    np.testing.assert_allclose(np.einsum("q,qk->k", 2.0 * np.pi * w * mu_o, f),
+                               directional_albedo(mu_i, albedo), rtol=rtol, atol=1e-12)
+    # Reciprocity.
+    np.testing.assert_allclose(half_space_reflection(0.3, 0.8, albedo), half_space_reflection(0.8, 0.3, albedo))
+    # It is the exit distribution times the albedo over pi.
+    if albedo > 0:
+        np.testing.assert_allclose(f, np.pi ** -1 * np.asarray(directional_albedo(mu_i, albedo))[None]
+                                   * np.asarray(exit_distribution(jnp.asarray(mu_o), mu_i, jnp.array([albedo])))[..., 0],
+                                   rtol=rtol)
+
+
+def test_half_space_reflection_gradient():
+    assert_grad_matches_fd(lambda a: half_space_reflection(0.4, 0.9, a[0]) + half_space_reflection(1.0, 0.1, a[1]),
+                           jnp.array([0.5, 0.999]), rtol=1e-5)
 
 
 @pytest.mark.parametrize("albedo, eta", [(0.4, 1.3), (0.95, 1.3), (0.68, 1.4), (0.999, 1.55)])
