@@ -8,6 +8,8 @@
 - :mod:`jaxsss.export.ply`: the PLY meshes both exporters reference (jaxsss's shading normals).
 - :mod:`jaxsss.export.compare`: per-pixel error of a linear image against a reference (lit pixels, the terminator
   band, summed radiance) and the pixel masks it needs from the scene geometry.
+- :mod:`jaxsss.export.exact`: exact transport references that need no path tracer (Chandrasekhar's reflection of a
+  point-lit flat face of an isotropic half-space), for the renderer and for the exported scenes alike.
 - :mod:`jaxsss.export.support`: what an exporter can represent; everything else is refused with an
   :class:`ExportError` naming the scene key.
 
