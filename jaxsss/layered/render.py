@@ -40,6 +40,7 @@ from jaxsss.render.camera import camera_rays
 from jaxsss.render.methods import Preparation, register_method, render
 from jaxsss.render.lights import refuse_lights
 from jaxsss.render.rays import OBJECT_TRANSLUCENT, SceneGeometry
+from jaxsss.render.scene import scene_with
 from jaxsss.render.shading import constant_image, face_the_eye
 
 __all__ = ["COS_MIN", "LayeredMethodState", "LayeredPrepared", "LayeredRenderResult", "layered_medium",
@@ -293,7 +294,10 @@ def prepare_layered_method(scene, *, resolution=None, pixel_mask=None, fit=False
     timings = info.pop("timings")
     diffuse = None
     if diffusion:
-        diffuse, plan, dinfo = prepare_diffusion(scene, method="hierarchical", eps=eps, resolution=resolution,
+        # The march casts the camera's spp rays everywhere: the diffusion term shades the same pixels (no edge rays,
+        # jaxsss.render.shading.edge_pixels), so that both terms cover each pixel alike.
+        centres = scene_with(scene, camera=dataclasses.replace(scene.camera, edge_spp=1))
+        diffuse, plan, dinfo = prepare_diffusion(centres, method="hierarchical", eps=eps, resolution=resolution,
                                                  progress=progress, pixel_mask=pixel_mask, cutoff=not fit,
                                                  share_channels=not fit)
         for key, value in dinfo["timings"].items():

@@ -1,7 +1,10 @@
 """Pinhole camera rays (NumPy).
 
 Image convention: ``(H, W)`` with row 0 at the top; ``fov_deg`` is the vertical field of view. With ``spp > 1``
-each pixel gets ``spp`` stratified jittered rays (deterministic for a seed) and the pixel is their mean.
+each pixel gets ``spp`` stratified jittered rays (deterministic for a seed) and the pixel is their mean (a box
+filter, as the path tracer's references). :func:`camera_rays` can cast a subset of the pixels at another ``spp`` (the
+renderer's extra rays at edges, :func:`jaxsss.render.shading.edge_pixels`); each ray carries its weight in its
+pixel's mean.
 """
 
 from __future__ import annotations
@@ -14,13 +17,24 @@ __all__ = ["CameraRays", "camera_frame", "camera_rays"]
 
 
 class CameraRays(NamedTuple):
-    """``R = H * W * spp`` primary rays."""
+    """``R`` primary rays (``H * W * spp`` for the whole image)."""
 
     origins: np.ndarray  # (R, 3) mm
     directions: np.ndarray  # (R, 3) unit
     pixel: np.ndarray  # (R,) int64 flat pixel index row * W + col
     shape: tuple  # (H, W)
-    spp: int
+    spp: int  # rays per pixel of the image's base sampling
+    weight: np.ndarray  # (R,) each ray's weight in its pixel's mean (1 / rays of that pixel)
+
+    def where(self, keep: np.ndarray) -> CameraRays:
+        """The rays ``keep`` (bool or indices) only."""
+        return self._replace(origins=self.origins[keep], directions=self.directions[keep], pixel=self.pixel[keep],
+                             weight=self.weight[keep])
+
+    def join(self, other: CameraRays) -> CameraRays:
+        """These rays followed by ``other``'s (same image; ``spp`` stays this one's)."""
+        return self._replace(**{k: np.concatenate([getattr(self, k), getattr(other, k)])
+                                for k in ("origins", "directions", "pixel", "weight")})
 
 
 def camera_frame(camera):
@@ -44,7 +58,8 @@ def _jitter(spp: int, rng: np.random.Generator, n_pixels: int) -> np.ndarray:
     return (cells[None, :, :] + u) / np.array([nx, ny])
 
 
-def camera_rays(camera, resolution=None, seed: int = 0) -> CameraRays:
+def camera_rays(camera, resolution=None, seed: int = 0, pixels: np.ndarray | None = None,
+                spp: int | None = None) -> CameraRays:
     """Primary rays of a pinhole camera.
 
     Args:
@@ -52,15 +67,20 @@ def camera_rays(camera, resolution=None, seed: int = 0) -> CameraRays:
             ``(W, H)``; ``spp``).
         resolution: optional ``(W, H)`` overriding the camera's.
         seed: jitter seed (only used when ``spp > 1``).
+        pixels: optional flat pixel indices ``(P,)``: cast only these.
+        spp: optional rays per pixel overriding the camera's.
     """
     width, height = (int(v) for v in (resolution or camera.resolution))
-    spp = int(camera.spp)
+    spp = int(camera.spp if spp is None else spp)
+    if spp < 1:
+        raise ValueError(f"spp={spp!r} is outside the allowed range [1, inf)")
     forward, right, up = camera_frame(camera)
     half_h = np.tan(np.radians(camera.fov_deg) / 2.0)
     half_w = half_h * width / height
-    n_pix = width * height
+    index = np.arange(width * height) if pixels is None else np.asarray(pixels, dtype=np.int64)
+    n_pix = len(index)
     offs = _jitter(spp, np.random.default_rng(seed), n_pix)
-    rows, cols = np.divmod(np.arange(n_pix), width)
+    rows, cols = np.divmod(index, width)
     px = (cols[:, None] + offs[..., 0]) / width  # (n_pix, spp) in [0, 1) left to right
     py = (rows[:, None] + offs[..., 1]) / height  # top to bottom
     sx = (2.0 * px - 1.0) * half_w
@@ -68,5 +88,5 @@ def camera_rays(camera, resolution=None, seed: int = 0) -> CameraRays:
     d = forward + sx[..., None] * right + sy[..., None] * up
     d = (d / np.linalg.norm(d, axis=-1, keepdims=True)).reshape(-1, 3)
     origins = np.broadcast_to(np.asarray(camera.position, dtype=np.float64), d.shape).copy()
-    pixel = np.repeat(np.arange(n_pix), spp)
-    return CameraRays(origins, d, pixel, (height, width), spp)
+    pixel = np.repeat(index, spp)
+    return CameraRays(origins, d, pixel, (height, width), spp, np.full(len(pixel), 1.0 / spp))

@@ -58,6 +58,8 @@ Schema (units: mm, 1/mm, degrees; "3 values" means ``[x, y, z]`` or ``[r, g, b]`
     fov_deg = 40              # vertical field of view, in (0, 180)
     resolution = [512, 512]   # [width, height] in pixels, positive integers
     spp = 1                   # samples per pixel, >= 1
+    edge_spp = 9              # samples per pixel at silhouettes, terminators and shadow edges when above spp, >= 1
+                              # (1: none; jaxsss.render.shading.edge_pixels)
 
     [[occluder]]              # optional opaque objects (e.g. a floor): cast shadows, rendered grey Lambertian
     builtin = "slab"          # the same mesh keys as [mesh]
@@ -133,6 +135,7 @@ from jaxsss.reparam import from_rd_ld
 __all__ = [
     "Blocker",
     "Camera",
+    "EDGE_SPP",
     "Light",
     "Material",
     "Occluder",
@@ -153,6 +156,9 @@ DEFAULT_ETA = 1.3
 LIGHT_KINDS = ("point", "directional", "spot", "sphere", "rectangle")
 AREA_LIGHT_SAMPLES = 16
 ENVIRONMENT_SAMPLES = 64
+EDGE_SPP = 9
+"""The camera's default ``edge_spp``: rays per pixel where the image has an edge the pixel centre misrepresents
+(:func:`jaxsss.render.shading.edge_pixels`; docs/path_tracer.md, "Pixels are areas")."""
 SWITCH_VALUES = ("auto", "on", "off")
 
 
@@ -214,7 +220,8 @@ class Light:
 
 @dataclass(frozen=True, eq=False)
 class Camera:
-    """A pinhole camera: ``fov_deg`` is vertical; ``resolution`` is ``(width, height)``; ``up`` is a unit vector."""
+    """A pinhole camera: ``fov_deg`` is vertical; ``resolution`` is ``(width, height)``; ``up`` is a unit vector;
+    ``spp`` rays per pixel, ``edge_spp`` at the pixels of :func:`jaxsss.render.shading.edge_pixels` when larger."""
 
     position: np.ndarray
     look_at: np.ndarray
@@ -222,6 +229,7 @@ class Camera:
     fov_deg: float = 40.0
     resolution: tuple[int, int] = (512, 512)
     spp: int = 1
+    edge_spp: int = EDGE_SPP
 
 
 @dataclass(frozen=True, eq=False)
@@ -649,7 +657,7 @@ def _parse_environment(ctx: SceneKeys, value) -> tuple[Light, str | None]:
     return Light("environment", scale, samples=samples, environment=env, key=key), None if path is None else str(path)
 
 
-_CAMERA_KEYS = ("position", "look_at", "up", "fov_deg", "resolution", "spp")
+_CAMERA_KEYS = ("position", "look_at", "up", "fov_deg", "resolution", "spp", "edge_spp")
 
 
 def _parse_camera(ctx: SceneKeys, table: dict) -> Camera:
@@ -675,7 +683,8 @@ def _parse_camera(ctx: SceneKeys, table: dict) -> Camera:
         raise ctx.error(f"{key}.resolution", f"{res!r} is not [width, height]")
     resolution = tuple(ctx.integer(v, f"{key}.resolution", 1) for v in res)
     spp = ctx.integer(table.get("spp", 1), f"{key}.spp", 1)
-    return Camera(position, look_at, _frozen(up / np.linalg.norm(up)), fov, resolution, spp)
+    edge_spp = ctx.integer(table.get("edge_spp", EDGE_SPP), f"{key}.edge_spp", 1)
+    return Camera(position, look_at, _frozen(up / np.linalg.norm(up)), fov, resolution, spp, edge_spp)
 
 
 def _parse_occluder(ctx: SceneKeys, table, key: str) -> Occluder:

@@ -290,9 +290,10 @@ def test_an_environment_alone_is_a_light():
 
 
 # --- every render method uses them or refuses them -------------------------------------------------------------------
+# edge_spp = 1: the edge pixels' extra rays follow each scene's lights, so the additivity cases would not share rays.
 SMALL = {"mesh": {"builtin": "sphere", "radius": 5.0, "subdivisions": 3},
          "camera": {"position": [0.0, -30.0, 10.0], "look_at": [0.0, 0.0, 0.0], "fov_deg": 25.0,
-                    "resolution": [16, 16]}}
+                    "resolution": [16, 16], "edge_spp": 1}}
 ENV = {"radiance": [1.0, 0.8, 0.6], "samples": 8}
 SPHERE = {"type": "sphere", "position": [10.0, -10.0, 10.0], "radius": 2.0, "radiance": 5.0, "samples": 4}
 RECT = {"type": "rectangle", "position": [-10.0, 0.0, 10.0], "direction": [1.0, 0.0, -1.0], "size": [4.0, 3.0],
