@@ -14,7 +14,7 @@ Conventions matched (units: mm, so Mitsuba's unitless lengths are mm and its rad
 - **Integrator.** ``volpathmis``, unlimited depth (``max_depth = -1``); Russian roulette starts after
   :func:`rr_depth` bounces. Mitsuba keeps a path with probability ``min(max(throughput), 0.95)``: above a
   single-scattering albedo of 0.95 the roulette makes the weights of surviving paths grow, and above 0.975 its
-  variance infinite, so for such media it starts only once the albedo alone has cut the throughput below
+  variance infinite, so for those media it starts only once the albedo alone has cut the throughput below
   :data:`RR_START_THROUGHPUT` (unbiased either way; a practical render with the early start comes out 2-3% dark at
   marble's albedo: :func:`rr_depth`).
 - **Lights** (same units): ``point`` (``intensity`` W/sr), ``directional`` (``irradiance`` W/mm^2 on a surface facing
@@ -89,7 +89,8 @@ DEFAULT_SPP = 1024
 RR_SURVIVAL_CAP = 0.95
 """Mitsuba's Russian roulette keeps a path with probability ``min(max(throughput), 0.95)``."""
 RR_START_THROUGHPUT = 1e-3
-"""Above an albedo of :data:`RR_SURVIVAL_CAP` the roulette starts once ``albedo^n`` is below this (:func:`rr_depth`)."""
+"""Above an albedo of ``sqrt(RR_SURVIVAL_CAP)`` the roulette starts once ``albedo^n`` is below this
+(:func:`rr_depth`)."""
 RR_DEPTH_MAX = 100_000_000
 """The latest start of the roulette (an albedo of 1: no absorption to end a path; it ends by leaving the object)."""
 
@@ -123,19 +124,20 @@ def _rgb(a) -> dict:
 
 
 def rr_depth(albedo_max: float) -> int:
-    """Bounces before Russian roulette starts: 5 (Mitsuba's default) up to an albedo of 0.95, else the first ``n``
-    with ``albedo_max ** n < RR_START_THROUGHPUT`` plus 5, at most :data:`RR_DEPTH_MAX` (an albedo of 1: paths end
-    only by leaving the object).
+    """Bounces before Russian roulette starts: 5 (Mitsuba's default) up to an albedo of 0.95; up to ``sqrt(0.95)``
+    (0.9747) the first ``n`` with ``albedo_max ** n < 0.95`` plus 5; above it the first ``n`` with ``albedo_max ** n <
+    RR_START_THROUGHPUT`` plus 5, at most :data:`RR_DEPTH_MAX` (an albedo of 1: paths end only by leaving the object).
 
-    Why so late: Mitsuba keeps a path with probability ``q = min(max(throughput), 0.95)`` and divides its throughput
-    by ``q``. Above an albedo ``a`` of 0.95 a surviving path's throughput grows by ``a / 0.95`` per bounce and its
-    second moment by ``a^2 / 0.95``: above ``a = 0.975`` the estimator's variance is infinite. It stays unbiased, but
-    a render of practical length comes out dark, its missing light in rare fireflies. Measured on marble (``a`` =
-    0.99904 / 0.99844 / 0.99764) on a flat slab under a point light, ``scalar_rgb``, against Chandrasekhar's exact
-    half-space reflection (docs/path_tracer.md, "Mitsuba's Russian roulette at high albedo"): with the roulette from
-    ``a^n < 0.95`` (the previous rule) 0.975 / 0.976 / 0.984 at 4096 spp (0.968 / 0.993 / 0.980 at 512); from ``a^n <
-    1e-3``, 1.005 / 1.005 / 1.005 +- 0.001 at 1024 spp. Starting there leaves to the roulette only the tail beyond a
-    thousandth of the throughput.
+    Why: Mitsuba keeps a path with probability ``q = min(max(throughput), 0.95)`` and divides its throughput by ``q``.
+    Above an albedo ``a`` of 0.95 a surviving path's throughput grows by ``a / 0.95`` per bounce and its second moment
+    by ``a^2 / 0.95``: up to ``a = sqrt(0.95)`` the variance stays finite and the early start is the efficient one
+    (skin1's red, 0.959: 1.009 and 0.967 per bounce); above it the variance is infinite. The estimator stays
+    unbiased, but a render of practical length comes out dark, its missing light in rare fireflies. Measured on
+    marble (``a`` = 0.99904 / 0.99844 / 0.99764) on a flat slab under a point light, ``scalar_rgb``, against
+    Chandrasekhar's exact half-space reflection (docs/path_tracer.md, "Mitsuba's Russian roulette at high albedo"):
+    with the roulette from ``a^n < 0.95``, 0.975 / 0.976 / 0.984 at 4096 spp (0.968 / 0.993 / 0.980 at 512); from
+    ``a^n < 1e-3``, 1.005 / 1.005 / 1.005 +- 0.001 at 1024 spp. Starting there leaves to the roulette only the tail
+    beyond a thousandth of the throughput.
 
     Args:
         albedo_max: the largest single-scattering albedo ``sigma_s / sigma_t`` over the channels, in ``[0, 1]``.
@@ -146,8 +148,10 @@ def rr_depth(albedo_max: float) -> int:
         return 5
     if albedo_max >= 1.0:
         return RR_DEPTH_MAX
-    # Throughput from absorption alone after n scatterings is albedo^n.
-    return min(RR_DEPTH_MAX, 5 + math.ceil(math.log(RR_START_THROUGHPUT) / math.log(albedo_max)))
+    # Throughput from absorption alone after n scatterings is albedo^n; the roulette's second moment grows by
+    # albedo^2 / 0.95 per bounce once it runs.
+    start = RR_SURVIVAL_CAP if albedo_max**2 <= RR_SURVIVAL_CAP else RR_START_THROUGHPUT
+    return min(RR_DEPTH_MAX, 5 + math.ceil(math.log(start) / math.log(albedo_max)))
 
 
 def spot_falloff_difference(cone_deg: float, falloff_deg: float, n: int = 2001) -> float:

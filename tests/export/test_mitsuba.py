@@ -149,7 +149,10 @@ def test_rr_depth():
     n = xm.rr_depth(0.999)
     # The roulette starts once absorption alone has cut the throughput below a thousandth.
     assert 0.999 ** (n - 5) < xm.RR_START_THROUGHPUT <= 0.999 ** (n - 6)
-    assert xm.rr_depth(0.95 + 1e-9) > 5
+    # Finite variance up to sqrt(0.95): the early start (skin1's red, 0.959: 7 bounces).
+    n = xm.rr_depth(0.9585)
+    assert n == 7 and 0.9585 ** (n - 5) < 0.95 <= 0.9585 ** (n - 6)
+    assert xm.rr_depth(0.95**0.5 + 1e-6) > 250
     assert xm.rr_depth(1.0) == xm.RR_DEPTH_MAX == xm.rr_depth(1.0 - 1e-15)
     with pytest.raises(ValueError, match=r"albedo_max=1.5 is outside the allowed range \[0, 1\]"):
         xm.rr_depth(1.5)
