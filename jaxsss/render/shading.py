@@ -33,8 +33,8 @@ from jaxsss.render.camera import camera_rays
 from jaxsss.render.lights import light_field
 from jaxsss.render.rays import OBJECT_TRANSLUCENT
 
-__all__ = ["CREASE_DEG", "EDGE_CONTRAST", "EDGE_TURN_DEG", "ShadedPoints", "ShadingPoints", "constant_image", "edge_pixels", "face_the_eye",
-           "image_stats", "point_shading", "shaded_fields", "shading_points"]
+__all__ = ["CREASE_DEG", "EDGE_CONTRAST", "EDGE_TURN_DEG", "ShadedPoints", "ShadingPoints", "constant_image",
+           "edge_pixels", "face_the_eye", "image_stats", "point_shading", "shaded_fields", "shading_points"]
 
 
 class ShadingPoints(NamedTuple):
