@@ -58,8 +58,8 @@ Schema (units: mm, 1/mm, degrees; "3 values" means ``[x, y, z]`` or ``[r, g, b]`
     fov_deg = 40              # vertical field of view, in (0, 180)
     resolution = [512, 512]   # [width, height] in pixels, positive integers
     spp = 1                   # samples per pixel, >= 1
-    edge_spp = 9              # samples per pixel at silhouettes, terminators and shadow edges when above spp, >= 1
-                              # (1: none; jaxsss.render.shading.edge_pixels)
+    edge_spp = 9              # samples per pixel at creases, and at terminators and shadow edges where the surface
+                              # turns, when above spp, >= 1 (1: none; jaxsss.render.shading.edge_pixels)
 
     [[occluder]]              # optional opaque objects (e.g. a floor): cast shadows, rendered grey Lambertian
     builtin = "slab"          # the same mesh keys as [mesh]

@@ -109,3 +109,11 @@ def test_edge_rays_bring_edge_pixels_to_their_area_mean():
     err_edge = np.abs(images["edge"][edges] - images["mean"][edges]).sum()
     err_centre = np.abs(images["centre"][edges] - images["mean"][edges]).sum()
     assert err_edge < 0.5 * err_centre, (err_edge, err_centre)
+
+
+def test_edge_spp_is_checked_by_the_scene():
+    from jaxsss.render import SceneError
+
+    with pytest.raises(SceneError, match=r"\[camera.edge_spp\] 0 is outside the allowed range \[1, inf\)"):
+        _sphere(edge_spp=0)
+    assert _sphere().camera.edge_spp == 9 and _sphere(edge_spp=1).camera.edge_spp == 1
