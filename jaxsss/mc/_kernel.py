@@ -69,6 +69,8 @@ class KernelConfig(NamedTuple):
     weight_threshold: float  # Russian roulette below this weight
     roulette_chance: float  # survival probability; survivors' weight is divided by it
     split_pool: int = 0  # radial splitting: rows of the shared pool of waiting copies (0: off); see params["window"]
+    n_mu: int = 0  # exit-cosine bins of the reflected light's direction tally (0: none); see params["mu_edges"]
+    n_harm: int = 0  # azimuthal harmonics cos(m phi), m = 0 .. n_harm - 1, per exit-cosine bin
 
 
 def _uniform(s):
@@ -114,6 +116,8 @@ def new_tallies(cfg: KernelConfig) -> dict:
         t["xy"] = jnp.zeros((N_ORDER * cfg.n_x * cfg.n_y, 2), f)  # flat (order, x bin, y bin), moment
     if cfg.n_path:
         t["r_path"] = jnp.zeros((cfg.n_r * cfg.n_path, 2), f)
+    if cfg.n_mu:
+        t["exit_dir"] = jnp.zeros((cfg.n_mu * cfg.n_harm, 2), f)  # flat (mu_o bin, harmonic), moment
     return t
 
 
@@ -313,6 +317,22 @@ def _tally(cfg: KernelConfig, params: dict, tal: dict, st: dict) -> dict:
         n_xy = cfg.n_x * cfg.n_y
         idx = jnp.where(exit_top & in_x & in_y, code * n_xy + ix * cfg.n_y + iy, N_ORDER * n_xy)
         tal["xy"] = tal["xy"].at[idx].add(moments, mode="drop")
+    if cfg.n_mu:
+        # Direction of the reflected light: exit cosine mu_o = -u_z and azimuth phi from the beam's plane (+x).
+        ux, uy = st["ux"], st["uy"]
+        mu_o = -st["uz"]
+        cos_phi = ux / jnp.sqrt(jnp.maximum(ux * ux + uy * uy, 1e-300))
+        im, in_mu = _bin(params["mu_edges"], mu_o)
+        # cos(m phi) by the Chebyshev recurrence T_m+1 = 2 c T_m - T_m-1 (no trigonometric calls).
+        harm = [jnp.ones_like(cos_phi), cos_phi]
+        while len(harm) < cfg.n_harm:
+            harm.append(2.0 * cos_phi * harm[-1] - harm[-2])
+        h = jnp.stack(harm[:cfg.n_harm], axis=1)  # (lanes, n_harm)
+        wh = jnp.where(exit_top, w, 0.0)[:, None] * h
+        m = jnp.arange(cfg.n_harm, dtype=jnp.int32)[None, :]
+        idx = jnp.where((exit_top & in_mu)[:, None], im[:, None] * cfg.n_harm + m, cfg.n_mu * cfg.n_harm)
+        tal["exit_dir"] = tal["exit_dir"].at[idx.reshape(-1)].add(
+            jnp.stack([wh, wh * wh], axis=-1).reshape(-1, 2), mode="drop")
     return tal
 
 
@@ -321,7 +341,8 @@ def batch_kernel(cfg: KernelConfig, params: dict, key, budget):
 
     ``params`` (all float64 arrays): ``sigma_a, sigma_s, g`` of shape ``(L,)``; ``n_ext = [n_above, n_1..n_L,
     n_below]``; ``z_edges`` ``(L + 1,)`` (last may be inf); ``r_edges``, ``x_edges``, ``y_edges``, ``path_edges``
-    (bin edges, used when the matching ``cfg`` size is non-zero); ``entry`` = ``(ux0, uz0, w0)``, the refracted
+    (bin edges, used when the matching ``cfg`` size is non-zero); ``mu_edges`` (exit cosines of the direction tally,
+    when ``cfg.n_mu``); ``entry`` = ``(ux0, uz0, w0)``, the refracted
     direction and the weight that enters (1 - specular). ``budget`` is an int64 scalar (dynamic: the last, partial
     batch reuses the compiled program).
     """

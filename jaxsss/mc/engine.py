@@ -199,7 +199,8 @@ def _progress_enabled(progress, n_batches: int) -> bool:
 
 
 def simulate(stack: Stack, photons: int, *, seed: int = 0, angle_deg: float = 0.0, r_edges=None, xy_edges=None,
-             pathlength_edges=None, batch_size: int | None = None, lanes: int | None = None,
+             pathlength_edges=None, exit_mu_edges=None, exit_harmonics: int = 9, batch_size: int | None = None,
+             lanes: int | None = None,
              max_steps: int = DEFAULT_MAX_STEPS, weight_threshold: float = 1e-4, roulette_chance: float = 0.1,
              split_length: float | None = None, split_start: float = 0.0, split_stop: float | None = None, progress: bool | None = None,
              devices=None) -> MCResult:
@@ -214,6 +215,9 @@ def simulate(stack: Stack, photons: int, *, seed: int = 0, angle_deg: float = 0.
         xy_edges: edges of the exit histogram ``R_xy``, mm: one array for both axes or a pair ``(x_edges, y_edges)``.
         pathlength_edges: pathlength bin edges, mm (e.g. log-spaced), ``>= 0``; enables ``R_r_path``; needs
             ``r_edges``.
+        exit_mu_edges: exit-cosine bin edges in ``[0, 1]`` (``(U + 1,)``, strictly increasing): enables the direction
+            tally ``R_mu_phi`` of the diffuse reflectance, ``exit_harmonics`` azimuthal harmonics ``cos(m phi)``
+            (``m = 0 .. exit_harmonics - 1``, ``>= 1``) per bin (:class:`~jaxsss.mc.MCResult`).
         batch_size: photons per compiled call (memory is bounded by ``lanes``, not by this). Default ``2**20``;
             with ``split_length``, ``ceil(photons / 16)`` (16 batch means for the standard errors).
         lanes: photons advanced in lock-step. ``None`` (default) picks a power of two in ``[256, 4096]`` that gives
@@ -288,6 +292,10 @@ def simulate(stack: Stack, photons: int, *, seed: int = 0, angle_deg: float = 0.
         if r_edges is None:
             raise ValueError("simulate(pathlength_edges=...) needs r_edges: R(r, L) is binned in r too")
         pathlength_edges = _edges(pathlength_edges, "pathlength_edges", nonnegative=True)
+    if exit_mu_edges is not None:
+        exit_mu_edges = _edges(exit_mu_edges, "exit_mu_edges", nonnegative=True)
+        check_range(exit_mu_edges, "exit_mu_edges", 0.0, 1.0, owner="simulate")
+        exit_harmonics = _positive_int(exit_harmonics, "exit_harmonics")
 
     L = stack.num_layers
     cfg = KernelConfig(
@@ -301,6 +309,8 @@ def simulate(stack: Stack, photons: int, *, seed: int = 0, angle_deg: float = 0.
         weight_threshold=weight_threshold,
         roulette_chance=roulette_chance,
         split_pool=SPLIT_POOL_PER_LANE * lanes if splitting else 0,
+        n_mu=0 if exit_mu_edges is None else exit_mu_edges.size - 1,
+        n_harm=0 if exit_mu_edges is None else exit_harmonics,
     )
     R_specular, ux0, uz0 = entry_state(stack.n_above, float(np.asarray(stack.n)[0]), angle_deg)
     dummy = np.zeros(2)
@@ -312,6 +322,7 @@ def simulate(stack: Stack, photons: int, *, seed: int = 0, angle_deg: float = 0.
         "x_edges": dummy if x_edges is None else x_edges,
         "y_edges": dummy if y_edges is None else y_edges,
         "path_edges": dummy if pathlength_edges is None else pathlength_edges,
+        "mu_edges": dummy if exit_mu_edges is None else exit_mu_edges,
         "entry": np.array([ux0, uz0, 1.0 - R_specular]),
     }
     if splitting:
@@ -342,9 +353,10 @@ def simulate(stack: Stack, photons: int, *, seed: int = 0, angle_deg: float = 0.
     meta = dict(seed=seed, angle_deg=angle_deg, seconds=seconds, compile_seconds=compile_seconds,
                 batches=n_batches, batch_size=batch_size, devices=len(devices))
     if not splitting:
-        return _assemble(totals, photons, R_specular, cfg, r_edges, x_edges, y_edges, pathlength_edges, **meta)
+        return _assemble(totals, photons, R_specular, cfg, r_edges, x_edges, y_edges, pathlength_edges, exit_mu_edges,
+                         **meta)
     totals, mean_r_err = _batch_moments(per_batch, photons)
-    res = _assemble(totals, photons, R_specular, cfg, r_edges, x_edges, y_edges, pathlength_edges,
+    res = _assemble(totals, photons, R_specular, cfg, r_edges, x_edges, y_edges, pathlength_edges, exit_mu_edges,
                     stderr_method="batches", split_length=split_length, split_start=split_start,
                     split_stop=split_stop, **meta)
     return dataclasses.replace(res, mean_exit_radius_stderr=mean_r_err)
@@ -368,7 +380,7 @@ def _batch_moments(per_batch: list[tuple[int, dict]], N: int) -> tuple[dict, flo
         var = B / (B - 1) * np.sum((n.reshape(x.shape[:1] + (1,) * (x.ndim - 1)) / N) ** 2 * (x - m) ** 2, axis=0)
         return N * ((N - 1) * var + m * m)
 
-    for k in ("exit", "profile", "xy", "r_path"):
+    for k in ("exit", "profile", "xy", "r_path", "exit_dir"):
         if k in totals:
             sums = np.stack([out[k][..., 0] for _, out in per_batch])
             totals[k] = np.stack([totals[k][..., 0], pseudo_sq(sums)], axis=-1)
@@ -385,7 +397,7 @@ def _batch_moments(per_batch: list[tuple[int, dict]], N: int) -> tuple[dict, flo
     return totals, mean_r_err
 
 
-def _assemble(t, N, R_specular, cfg, r_edges, x_edges, y_edges, path_edges, **meta) -> MCResult:
+def _assemble(t, N, R_specular, cfg, r_edges, x_edges, y_edges, path_edges, mu_edges=None, **meta) -> MCResult:
     exit_ = t["exit"]  # (R/T, order, moment)
     order_mean = exit_[..., 0] / N
     order_err = stderr_of_mean(exit_[..., 0], exit_[..., 1], N)
@@ -436,4 +448,8 @@ def _assemble(t, N, R_specular, cfg, r_edges, x_edges, y_edges, path_edges, **me
         rp = t["r_path"].reshape(cfg.n_r, cfg.n_path, 2)
         kw.update(pathlength_edges=path_edges, R_r_path=rp[..., 0] / N / area,
                   R_r_path_stderr=stderr_of_mean(rp[..., 0], rp[..., 1], N) / area)
+    if cfg.n_mu:
+        ed = t["exit_dir"].reshape(cfg.n_mu, cfg.n_harm, 2)
+        kw.update(exit_mu_edges=mu_edges, R_mu_phi=ed[..., 0] / N, R_mu_phi_stderr=stderr_of_mean(ed[..., 0],
+                                                                                               ed[..., 1], N))
     return MCResult(**meta, **kw)

@@ -59,6 +59,11 @@ class MCResult:
         pathlength_edges ``(P + 1,)`` mm; R_r_path ``(M, P)``: diffuse reflectance per mm^2 of the annulus, for
             photons whose total pathlength inside the medium falls in each bin (not divided by the bin width), with
             ``R_r_path_stderr``. Photons outside the pathlength range are left out, so ``R_r_path.sum(1) <= R_r``.
+        exit_mu_edges ``(U + 1,)``; R_mu_phi ``(U, H)``: the direction of the diffuse reflectance, per incident photon:
+            ``sum w cos(m phi) / N`` over the photons leaving the top face with exit cosine ``mu_o`` in bin ``u``
+            (``m = 0 .. H - 1``; ``phi`` the azimuth from the oblique beam's plane, +x). Column 0 is the reflectance
+            per bin; the radiance relative to a Lambertian exit of the same total ``R`` is ``X(mu_o, phi) =
+            (R_mu_phi[u, 0] + 2 sum_m R_mu_phi[u, m] cos(m phi)) / (2 R mu_o d mu_o)``. With ``R_mu_phi_stderr``.
 
     Metadata: photons, seed, angle_deg (incidence in air, degrees), seconds (wall time of the whole run),
     compile_seconds (0 when the kernel was already compiled), events (lane events of live photons: interactions +
@@ -113,6 +118,9 @@ class MCResult:
     pathlength_edges: np.ndarray | None = None
     R_r_path: np.ndarray | None = None
     R_r_path_stderr: np.ndarray | None = None
+    exit_mu_edges: np.ndarray | None = None
+    R_mu_phi: np.ndarray | None = None
+    R_mu_phi_stderr: np.ndarray | None = None
     stderr_method: str = "photons"
     split_length: float | None = None
     split_start: float = 0.0
