@@ -89,11 +89,13 @@ import numpy as np
 from jaxsss.fresnel import snell_cosine
 from jaxsss.medium import Medium
 from jaxsss.render.curvature import N_KAPPA, curvature_coordinate, log_ratio_table, pair_curvature
+from jaxsss.render.exit_direction import anisotropic_exit_distribution
 
 __all__ = ["BSSRDFS", "GRID_PER_DECADE", "OBLIQUE_MUS", "WhiteKernel", "albedo_correction", "chandrasekhar_h",
            "choose_bssrdf", "directional_albedo", "exit_distribution", "exit_radiance_nodes", "half_space_reflection",
            "hat_weights",
-           "refracted_exit_distribution", "surface_tangents", "incident_flux", "oblique_dir", "oblique_pairs",
+           "refracted_exit_distribution", "shift_ratio_table", "surface_tangents", "incident_flux", "oblique_dir",
+           "oblique_pairs",
            "oblique_sources", "shift_reach", "WHITE_DENSITY", "WhiteSources", "white_kernel", "white_table",
            "white_tables"]
 
@@ -119,7 +121,20 @@ rows the albedo ``alpha'`` of :data:`SHIFT_ALBEDO`, columns the incidence cosine
 as the first moment of the exit positions in Monte Carlo (``jaxsss.mc.simulate`` with ``xy_edges``, 1e5 photons,
 g = 0, eta = 1; ``python -m jaxsss.render.make_oblique_tables --shifts`` reprints it). Wang and Jacques' diffusion
 estimate ``3 D sin theta_t`` would be 1 everywhere: it overestimates the shift of absorbing media at steep incidence
-by up to 45%. Interpolated linearly in ``alpha'`` (held beyond the ends)."""
+by up to 45%. Interpolated linearly in ``alpha'`` (held beyond the ends); in ``g`` with :data:`SHIFT_RATIO_G09`
+(:func:`shift_ratio_table`)."""
+SHIFT_RATIO_G09 = ((0.960, 0.960, 0.877, 0.738),
+                   (0.935, 0.896, 0.773, 0.611),
+                   (0.931, 0.862, 0.726, 0.563),
+                   (0.918, 0.854, 0.716, 0.555),
+                   (0.922, 0.847, 0.721, 0.565),
+                   (0.916, 0.858, 0.737, 0.586),
+                   (0.924, 0.863, 0.754, 0.602))
+""":data:`SHIFT_RATIO` for ``g = 0.9`` (the same measurement, ``--shifts --g 0.9``; ``sigma_s = 10/mm``). Forward
+scattering moves the light further at steep incidence (0.92-0.96 at cos 0.75, against 0.58-0.87) and less at grazing
+incidence (0.56-0.74 at cos 0.1, against 0.90-0.97): there much of it leaves near the entry point after a few
+small-angle deflections, forwards and grazing (:mod:`jaxsss.render.exit_direction`). With the ``g = 0`` table the
+g09_sphere's terminator band was 11-19% too bright (docs/path_tracer.md, "Forward scattering's exit direction")."""
 CURVATURE_WHY = ("the surface's curvature per pair (jaxsss.render.curvature: a convex object lets more light out "
                  "than a half-space; flat surfaces are unchanged); light that crosses the object without interacting "
                  "(jaxsss.render.passage: each light's refracted ray traced to where it leaves, the flux weighted by "
@@ -137,9 +152,13 @@ the render's time."""
 MEASURED_DG = 0.45
 """How far in ``g`` from its oblique sources the transfer of the oblique/normal ratio was measured (module docstring)."""
 FORWARD_G = 0.5
-"""``"auto"`` keeps the dipole from this ``g`` up: the exit distribution (:func:`exit_distribution`) is isotropic
-scattering's, and for g = 0.9 the oblique tables put forward-grazing light where the eye sees it (measured against
-Mitsuba's g09_sphere: white-oblique 0.39-0.51 mean relative error, white and dipole 0.18-0.21; docs/path_tracer.md)."""
+"""``"auto"`` keeps the dipole from this ``g`` up at a dielectric boundary (``eta != 1``): there the white kernels'
+exit distribution is isotropic scattering's (:func:`refracted_exit_distribution`), and with it the oblique tables of
+a forward-scattering medium put forward-grazing light where the eye sees it. At ``eta = 1`` the white kernels exit
+by the forward-scattering table (:mod:`jaxsss.render.exit_direction`) and ``auto`` takes them for every ``g``:
+against Mitsuba's g09_sphere (g = 0.9) mare_lit 0.102 / 0.106 / 0.112, sums 0.98, against the dipole's 0.152 / 0.160
+/ 0.173, sums 0.93 / 0.90 / 0.88 (with the isotropic exit: 0.36-0.51; docs/path_tracer.md, "Forward scattering's
+exit direction")."""
 GRID_RHO_MIN = 1e-3
 GRID_RHO_MAX = 10**3.5
 GRID_PER_DECADE = 40
@@ -260,8 +279,9 @@ def _sources_text(g: float, n: float) -> str:
 def choose_bssrdf(medium: Medium, request: str = "auto") -> tuple[str, str]:
     """``(kernel, reason)``: the BSSRDF kernel for ``medium`` and the plan's one-line reason.
 
-    ``request`` is one of :data:`BSSRDFS`; ``"auto"`` takes ``white-oblique`` for ``g < FORWARD_G`` inside the white
-    Monte Carlo family's range (``g`` in [0, 0.95], ``eta`` in [1, 1.6]) and the dipole otherwise. A white request
+    ``request`` is one of :data:`BSSRDFS`; ``"auto"`` takes ``white-oblique`` inside the white Monte Carlo family's
+    range (``g`` in [0, 0.95], ``eta`` in [1, 1.6]) except for ``g >= FORWARD_G`` at ``eta != 1``, and the dipole
+    otherwise. A white request
     outside the family's range is a ``ValueError`` naming the argument, its value and the range."""
     from jaxsss.mc.white_family import check_covered, covers
 
@@ -281,11 +301,15 @@ def choose_bssrdf(medium: Medium, request: str = "auto") -> tuple[str, str]:
             check_covered(g, eta, owner=f"bssrdf={request!r}")
         return "dipole", (f"WARNING: g={g:g}, eta={eta:g} is outside the white Monte Carlo family's range (g in [0, "
                           "0.95], eta in [1, 1.6]): the dipole plus single scattering (up to ~25% off transport)")
-    exit_why = ("Chandrasekhar's exit distribution (eta = 1)" if exit_model_for(medium) == "chandrasekhar" else
-                "Chandrasekhar's exit distribution at the refracted cosines, through the Fresnel boundary")
-    if request == "auto" and g >= FORWARD_G:
-        return "dipole", (f"g = {g:g} >= {FORWARD_G:g}: no exit model for forward scattering; against Mitsuba (g09_sphere) "
-                          "the white profiles are no better than the dipole plus single scattering, which is cheaper")
+    exit_why = {"chandrasekhar": "Chandrasekhar's exit distribution (eta = 1)",
+                "anisotropic": ("the forward-scattering exit distribution by the light's azimuth to the view "
+                                "(jaxsss.render.exit_direction, eta = 1)"),
+                "refracted": ("Chandrasekhar's exit distribution at the refracted cosines, through the Fresnel "
+                              "boundary")}[exit_model_for(medium)]
+    if request == "auto" and g >= FORWARD_G and eta != 1.0:
+        return "dipole", (f"g = {g:g} >= {FORWARD_G:g} at eta = {eta:g}: the forward-scattering exit distribution "
+                          "is tabulated for an index-matched boundary only, and the isotropic one puts "
+                          "forward-grazing light where the eye sees it; the dipole plus single scattering")
     if request in ("auto", "white-oblique"):
         return "white-oblique", (
             f"white Monte Carlo family profile (g={g:g}, n={eta:g}) at normal incidence and at incidence cos "
@@ -297,10 +321,14 @@ def choose_bssrdf(medium: Medium, request: str = "auto") -> tuple[str, str]:
 
 
 def exit_model_for(medium: Medium) -> str:
-    """The exit distribution of a white kernel: ``"chandrasekhar"`` at an index-matched boundary (``eta = 1``),
-    else ``"refracted"`` (Chandrasekhar's at the refracted cosines, through the Fresnel boundary); see
+    """The exit distribution of a white kernel: at an index-matched boundary (``eta = 1``) ``"chandrasekhar"`` for
+    isotropic scattering and ``"anisotropic"`` (:mod:`jaxsss.render.exit_direction`) for ``g > 0``; else
+    ``"refracted"`` (Chandrasekhar's at the refracted cosines, through the Fresnel boundary); see
     :func:`exit_radiance_nodes`."""
-    return "chandrasekhar" if float(np.asarray(medium.eta)) == 1.0 else "refracted"
+    if float(np.asarray(medium.eta)) != 1.0:
+        return "refracted"
+    g = 0.0 if medium.g is None else float(np.asarray(medium.g))
+    return "anisotropic" if g > 0.0 else "chandrasekhar"
 
 
 def hat_weights(mu, mus):
@@ -599,6 +627,14 @@ class WhiteKernel(eqx.Module):
         return spread * self.weighted_disc(rho0)
 
 
+def shift_ratio_table(g: float) -> np.ndarray:
+    """``(len(SHIFT_ALBEDO), len(OBLIQUE_MUS))`` forward-shift ratios at anisotropy ``g``: linear between
+    :data:`SHIFT_RATIO` (``g = 0``) and :data:`SHIFT_RATIO_G09` (``g = 0.9``), held beyond them."""
+    w = min(max(float(g) / 0.9, 0.0), 1.0)
+    # Linear in g between the measured tables.
+    return (1.0 - w) * np.asarray(SHIFT_RATIO) + w * np.asarray(SHIFT_RATIO_G09)
+
+
 def shift_reach(medium: Medium, bssrdf: str, mus: tuple = KERNEL_MUS) -> float:
     """How far (mm) the ``white-oblique`` kernel moves a profile's centre from its sample at most: the largest
     ``SHIFT_RATIO(alpha') sin(theta_t) / sigma_t'`` over the channels and the oblique nodes ``mus``, with ``sin
@@ -614,8 +650,8 @@ def shift_reach(medium: Medium, bssrdf: str, mus: tuple = KERNEL_MUS) -> float:
     sigma_a = np.atleast_1d(np.asarray(medium.sigma_a, dtype=np.float64))
     sigma_s_prime = np.atleast_1d(np.asarray(medium.sigma_s_prime, dtype=np.float64))
     sigma_t_prime = sigma_a + sigma_s_prime
-    ratio = [np.interp(sigma_s_prime / sigma_t_prime, SHIFT_ALBEDO, np.asarray(SHIFT_RATIO)[:, OBLIQUE_MUS.index(mu)])
-             for mu in mus]
+    table = shift_ratio_table(0.0 if medium.g is None else float(np.max(np.asarray(medium.g))))
+    ratio = [np.interp(sigma_s_prime / sigma_t_prime, SHIFT_ALBEDO, table[:, OBLIQUE_MUS.index(mu)]) for mu in mus]
     # Oblique incidence: the shift SHIFT_RATIO sin(theta_t) / sigma_t', at its largest sin(theta_t) = 1 / eta.
     return float(np.max(np.asarray(ratio) / sigma_t_prime) / max(float(np.max(np.asarray(medium.eta))), 1.0))
 
@@ -719,18 +755,21 @@ def _white_kernel(medium: Medium, sources: WhiteSources, mus: tuple, shift: bool
         sigma_t_prime = sigma_a + sigma_s_prime
         ratio = jnp.stack([jnp.ones_like(sigma_t_prime)] + [  # normal incidence: no shift to scale
             jnp.interp(sigma_s_prime / sigma_t_prime, jnp.asarray(SHIFT_ALBEDO),
-                       jnp.asarray(SHIFT_RATIO)[:, OBLIQUE_MUS.index(mu)]) for mu in mus[1:]])
+                       jnp.asarray(shift_ratio_table(g))[:, OBLIQUE_MUS.index(mu)]) for mu in mus[1:]])
         # Oblique incidence: forward shift (SHIFT_RATIO) sin(theta_t) / sigma_t'.
         length = ratio / sigma_t_prime
     return WhiteKernel(log_R - 2.0 * jnp.log(sigma_s), sigma_s, length)
 
 
-def exit_radiance_nodes(medium: Medium, exitance, cos_o, mus, model: str):
+def exit_radiance_nodes(medium: Medium, exitance, cos_o, mus, model: str, azimuth=None):
     """Radiance towards the eye, ``(Q, C)`` W/(mm^2 sr), from the exitance of each incidence node ``(Q, K, C)``.
 
-    ``model="chandrasekhar"`` (index-matched boundary): ``L = sum_k M_k X(mu_o | mu_k) / pi`` with
-    :func:`exit_distribution` at the similarity albedo ``sigma_s' / (sigma_a + sigma_s')`` (exact for ``g = 0``;
-    the isotropic equivalent otherwise). ``"refracted"`` (a dielectric boundary): the same with
+    ``model="chandrasekhar"`` (index-matched boundary, ``g = 0``): ``L = sum_k M_k X(mu_o | mu_k) / pi`` with
+    :func:`exit_distribution` at the similarity albedo ``sigma_s' / (sigma_a + sigma_s')`` (exact for ``g = 0``).
+    ``"anisotropic"`` (index-matched, ``g > 0``): the same with the Monte Carlo exit distribution of a
+    forward-scattering half-space, which depends on the azimuth between the light's travel and the view
+    (:func:`jaxsss.render.exit_direction.anisotropic_exit_distribution`; ``azimuth`` ``(Q, H - 1)`` its
+    :func:`~jaxsss.render.exit_direction.azimuth_harmonics`). ``"refracted"`` (a dielectric boundary): the same with
     :func:`refracted_exit_distribution`. ``"fresnel"``: the dipole renderer's Lambertian exit through the boundary,
     ``F_t(cos_o) sum_k M_k / (pi F_dt,ext)`` (:func:`jaxsss.render.radiance.exit_radiance`)."""
     from jaxsss.render.radiance import exit_radiance
@@ -742,6 +781,11 @@ def exit_radiance_nodes(medium: Medium, exitance, cos_o, mus, model: str):
     mu_o = jnp.clip(cos_o, 0.0, 1.0)
     if model == "refracted":
         x = refracted_exit_distribution(mu_o, jnp.asarray(mus), albedo, jnp.asarray(medium.eta))
+    elif model == "anisotropic":
+        if azimuth is None:
+            raise ValueError("exit_radiance_nodes(model='anisotropic') needs azimuth=(Q, H - 1) harmonics "
+                             "(jaxsss.render.exit_direction.azimuth_harmonics)")
+        x = anisotropic_exit_distribution(mu_o, azimuth, mus, albedo, 0.0 if medium.g is None else medium.g)
     else:
         x = exit_distribution(mu_o, jnp.asarray(mus), albedo)
     # Exit by Chandrasekhar's reflection function, node by node.

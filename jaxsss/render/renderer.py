@@ -102,8 +102,9 @@ class Prepared(ReflectingPoints):
                     # The oblique profiles' forward shift, shortened where the chord ends before the half-space's
                     # mean travel (grazing light on a curved or thin part).
                     travel = truncated_travel(self.light_chord, medium.sigma_a + medium.sigma_s_prime)
-            if self.bssrdf_exit == "chandrasekhar" and len(self.bssrdf_mus) > 1:
-                # Index-matched: the node mix reflects Chandrasekhar's exact total at every incidence cosine.
+            if self.bssrdf_exit in ("chandrasekhar", "anisotropic") and len(self.bssrdf_mus) > 1:
+                # Index-matched: the node mix reflects Chandrasekhar's exact total at every incidence cosine (for
+                # g > 0 the isotropic equivalent's: its curve in mu has the same shape within a few per cent).
                 albedo = jnp.broadcast_to(medium.alpha_prime, irradiance.shape[-1:])
                 irradiance = irradiance * albedo_correction(self.light_cos, self.bssrdf_mus, albedo)
                 if indirect is not None:

@@ -28,13 +28,15 @@ import numpy as np
 
 from jaxsss.medium import Medium
 from jaxsss.render import radiance as rad
-from jaxsss.render.bssrdf import exit_radiance_nodes
+from jaxsss.render.bssrdf import exit_model_for, exit_radiance_nodes
+from jaxsss.render.exit_direction import azimuth_harmonics
 from jaxsss.render.camera import camera_rays
 from jaxsss.render.lights import light_field
 from jaxsss.render.rays import OBJECT_TRANSLUCENT
 
 __all__ = ["CREASE_DEG", "EDGE_CONTRAST", "EDGE_TURN_DEG", "ShadedPoints", "ShadingPoints", "constant_image",
-           "edge_pixels", "face_the_eye", "image_stats", "point_shading", "shaded_fields", "shading_points"]
+           "edge_pixels", "exit_azimuth", "face_the_eye", "image_stats", "point_shading", "shaded_fields",
+           "shading_points"]
 
 
 class ShadingPoints(NamedTuple):
@@ -213,6 +215,8 @@ class ShadedPoints(eqx.Module):
     query_irradiance: jax.Array | None  # (Q, L, C)
     query_pixel: jax.Array  # (Q,) flat pixel index
     query_weight: jax.Array  # (Q,) each point's weight in its pixel's mean
+    # (Q, H - 1) the light's azimuth to the view, cos(m phi) (white kernels with g > 0 at eta = 1), or None
+    exit_azimuth: jax.Array | None
     constant: jax.Array  # (H * W, C): background and occluders, already weighted
     shape: tuple = eqx.field(static=True)  # (H, W)
     spp: int = eqx.field(static=True)
@@ -233,7 +237,7 @@ class ShadedPoints(eqx.Module):
         if exit_nodes is None:
             out = rad.exit_radiance(medium, exitance, cos_o)
         else:
-            out = exit_radiance_nodes(medium, exitance, cos_o, *exit_nodes)
+            out = exit_radiance_nodes(medium, exitance, cos_o, *exit_nodes, azimuth=self.exit_azimuth)
         if self.single_scattering:
             out = out + rad.single_scattering(medium, self.query_normal, self.to_eye, self.query_to_light,
                                               self.query_irradiance)
@@ -260,12 +264,21 @@ def shaded_fields(scene, plan, shading: ShadingPoints) -> dict[str, Any]:
         "query_irradiance": None if light is None else jnp.asarray(light.irradiance),
         "query_pixel": jnp.asarray(shading.pixel),
         "query_weight": jnp.asarray(shading.weight),
+        "exit_azimuth": exit_azimuth(scene, plan, shading),
         "constant": jnp.asarray(shading.constant),
         "shape": shading.shape,
         "spp": shading.spp,
         "single_scattering": plan.single_scattering,
         "specular_roughness": scene.material.specular_roughness if plan.specular else None,
     }
+
+
+def exit_azimuth(scene, plan, shading: ShadingPoints):
+    """``(Q, H - 1)`` :func:`jaxsss.render.exit_direction.azimuth_harmonics` at the shaded points when the plan's
+    white kernel exits through the anisotropic model (``g > 0``, ``eta = 1``), else None."""
+    if plan.bssrdf == "dipole" or exit_model_for(scene.material.medium) != "anisotropic":
+        return None
+    return jnp.asarray(azimuth_harmonics(scene.lights, shading.pos, shading.normal, shading.to_eye))
 
 
 def image_stats(image: np.ndarray) -> dict[str, Any]:

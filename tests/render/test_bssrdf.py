@@ -311,7 +311,9 @@ def test_the_plan_chooses_the_kernel_and_counts_single_scattering_once():
     # tables (the family covers the pair).
     (0.0, 1.3, "white-oblique", "ratio of (g=0, n=1.33) x 1.00"),
     (0.3, 1.0, "white-oblique", "(g=0, n=1) x 0.67 and (g=0.9, n=1) x 0.33"),
-    (0.5, 1.45, "dipole", "g = 0.5 >= 0.5: no exit model for forward scattering"),
+    (0.5, 1.45, "dipole", "g = 0.5 >= 0.5 at eta = 1.45: the forward-scattering exit distribution is tabulated"),
+    # Index-matched forward scattering: the white kernels, exit by jaxsss.render.exit_direction.
+    (0.9, 1.0, "white-oblique", "forward-scattering exit distribution by the light's azimuth"),
     (0.0, 2.0, "dipole", "eta=2 is outside the white Monte Carlo family's range (g in [0, 0.95], eta in [1, 1.6])"),
     (0.97, 1.3, "dipole", "g=0.97, eta=1.3 is outside the white Monte Carlo family's range"),
 ])
