@@ -5,7 +5,8 @@ light) a high-spp Mitsuba reference is committed next to the scene (``<name>.npz
 radiance and ``coverage`` (H, W), Mitsuba's object mask; ``<name>.json``: command, variant, spp, seeds, Mitsuba
 version, seconds, and the reference's own noise). Against it:
 
-- jaxsss: ``jaxsss.render.render(scene, method=m, bssrdf=k)`` for ``hierarchical`` (eps 0.05 and 0.2; quick: 0.05)
+- jaxsss: ``jaxsss.render.render(scene, method=m, bssrdf=k)`` for ``hierarchical`` (the plan's eps, and 0.05 and 0.2;
+  quick: the plan's)
   and ``direct``, with the old kernel (``dipole``: the dipole plus single scattering) and the new ones (``white``,
   ``white-oblique``; :mod:`jaxsss.render.bssrdf`): ``seconds`` is the whole render (plan, pass 1, tree, pass 2)
   after one warm-up render of the same scene, as Mitsuba's below; the warm-up's JAX compilation is
@@ -24,7 +25,7 @@ fully covered pixels (``mare_lit``); rows also carry ``mare_lit``, ``mare_band``
 Outputs: ``render_vs_path_tracer.json`` / ``.png`` (error against seconds) and ``render_vs_path_tracer_maps.png``
 (per scene: reference, jaxsss hierarchical, and its signed relative error per channel). The summary's
 ``equal_error`` per scene (:func:`equal_error`, also printed): the seconds Mitsuba needs for the error of jaxsss's
-own choice of kernel (hierarchical, eps 0.05), by the line through its two highest-spp rows and at ``1/sqrt(spp)``,
+own choice of kernel (hierarchical, the plan's eps), by the line through its two highest-spp rows and at ``1/sqrt(spp)``,
 and the ratios to jaxsss's seconds.
 
 ``--references`` regenerates the references instead (slow: minutes per scene at ``REFERENCE_SPP`` with the LLVM
@@ -55,15 +56,18 @@ LLVM_CANDIDATES = ("/usr/lib/x86_64-linux-gnu/libLLVM-19.so", "/usr/lib/x86_64-l
 ERROR_METRIC = "max over RGB of mean |relative error| over lit fully covered pixels vs the Mitsuba reference"
 CONFIG = {
     "quick": dict(mitsuba_spp=(16, 64, 256),
-                  jaxsss=(("hierarchical", 0.05, "dipole"), ("hierarchical", 0.05, "white"),
-                          ("hierarchical", 0.05, "white-oblique"), ("direct", None, "white-oblique"))),
+                  jaxsss=(("hierarchical", "plan", "dipole"), ("hierarchical", "plan", "white"),
+                          ("hierarchical", "plan", "white-oblique"), ("direct", None, "white-oblique"))),
     "full": dict(mitsuba_spp=(16, 64, 256, 1024, 4096),
-                 jaxsss=(("hierarchical", 0.05, "dipole"), ("hierarchical", 0.2, "dipole"), ("direct", None, "dipole"),
-                         ("hierarchical", 0.05, "white"), ("hierarchical", 0.05, "white-oblique"),
-                         ("hierarchical", 0.2, "white-oblique"), ("direct", None, "white-oblique"))),
+                 jaxsss=(("hierarchical", "plan", "dipole"), ("hierarchical", 0.2, "dipole"), ("direct", None, "dipole"),
+                         ("hierarchical", "plan", "white"), ("hierarchical", 0.05, "white-oblique"),
+                         ("hierarchical", "plan", "white-oblique"), ("hierarchical", 0.2, "white-oblique"),
+                         ("direct", None, "white-oblique"))),
 }
-"""jaxsss rows: (method, eps, BSSRDF kernel of :mod:`jaxsss.render.bssrdf`). ``"auto"`` would pick per material; the
-rows name the kernel so that old and new are compared on every scene."""
+"""jaxsss rows: (method, eps, BSSRDF kernel of :mod:`jaxsss.render.bssrdf`); eps ``"plan"``: the plan's own
+(:data:`jaxsss.render.plan.EPS_WHITE` for the white kernels, ``EPS_DEFAULT`` for the dipole), ``None`` for the direct
+sum. ``"auto"`` would pick the kernel per material; the rows name it so that old and new are compared on every
+scene."""
 
 
 def _llvm_env() -> None:
@@ -150,10 +154,12 @@ def _jaxsss_rows(name, scene, ref, coverage, pixels, settings):
     from benchmarks._harness import make_row
     from benchmarks.render_eps import compile_clock
     from jaxsss.export.compare import compare_images
-    from jaxsss.render import render
+    from jaxsss.render import make_plan, render
 
     rows, images = [], {}
     for method, eps, bssrdf in settings:
+        if eps == "plan":
+            eps = make_plan(scene, method=method, bssrdf=bssrdf).eps
         kwargs = {"method": method, "bssrdf": bssrdf} if eps is None else {"method": method, "eps": eps,
                                                                             "bssrdf": bssrdf}
         with compile_clock() as c:
@@ -297,9 +303,9 @@ def main(argv=None) -> int:
         for kernel in ("dipole", "white-oblique"):
             hier = images[next(k for k in images if k.startswith("hierarchical") and k.endswith(" " + kernel))]
             panels.append((f"{name} {kernel}", ref, hier, error_map(hier, ref, pixels, coverage=coverage)))
-        # The plan's own kernel ("auto") at the default eps, against Mitsuba at equal error.
-        auto = make_plan(scene, method="hierarchical", bssrdf="auto").bssrdf
-        row = next(r for r in jrows if r["setting"] == f"hierarchical eps=0.05 {auto}")
+        # The plan's own kernel ("auto") at the plan's eps, against Mitsuba at equal error.
+        auto = make_plan(scene, method="hierarchical", bssrdf="auto")
+        row = next(r for r in jrows if r["setting"] == f"hierarchical eps={auto.eps:g} {auto.bssrdf}")
         summary[name] = {"reference_spp": meta["spp"], "reference_seconds": meta["seconds"],
                          "reference_noise_mare": meta["noise_mare_lit"],
                          "equal_error": {"setting": row["setting"], **equal_error(

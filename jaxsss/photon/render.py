@@ -43,7 +43,7 @@ from jaxsss.render import radiance as rad
 from jaxsss.render.lights import DELTA_KINDS, refuse_lights
 from jaxsss.render.methods import Preparation, register_method
 from jaxsss.render.pairs import BLOCK_PAIRS, pair_blocks
-from jaxsss.render.plan import PlanItem, make_plan
+from jaxsss.render.plan import EPS_DEFAULT, PlanItem, make_plan
 from jaxsss.render.rays import SceneGeometry
 from jaxsss.render.mirror import ReflectingPoints, mirror_field
 from jaxsss.render.shading import point_shading, shaded_fields, shading_points
@@ -200,7 +200,8 @@ def prepare_photon(scene, *, n_photons: int | None = None, eps: float | None = N
     Args:
         scene: a :class:`~jaxsss.render.scene.Scene` (its ``[[blocker]]`` meshes cast volumetric shadows).
         n_photons: photons traced (default the scene's ``[render].photons``), ``>= 1``.
-        eps: solid-angle threshold (sr), ``> 0``; default the scene's ``[render].eps``.
+        eps: solid-angle threshold (sr), ``> 0``; default the scene's ``[render].eps``, else
+            :data:`jaxsss.render.plan.EPS_DEFAULT`.
         resolution: ``(W, H)`` overriding the camera's.
         points: optional ``(points (Q, 3), normals (Q, 3))`` surface points to shade instead of the camera's (the
             image is then ``(1, Q, C)``; validation against the mesh Monte Carlo uses it).
@@ -217,7 +218,7 @@ def prepare_photon(scene, *, n_photons: int | None = None, eps: float | None = N
         raise ValueError(f"prepare_photon(kappa={kappa!r}) is not one of: {', '.join(KAPPA_COEFFICIENTS)}")
     n_photons = scene.render.photons if n_photons is None else n_photons
     check_integer(n_photons, "n_photons", 1, owner="prepare_photon")
-    eps = float(scene.render.eps if eps is None else eps)
+    eps = float((EPS_DEFAULT if scene.render.eps is None else scene.render.eps) if eps is None else eps)
     if not (math.isfinite(eps) and eps > 0):
         raise ValueError(f"prepare_photon(eps={eps!r}) is outside the allowed range (0, inf) sr")
     timings: dict[str, float] = {}

@@ -71,7 +71,8 @@ Schema (units: mm, 1/mm, degrees; "3 values" means ``[x, y, z]`` or ``[r, g, b]`
 
     [render]                  # keys of RenderSettings (defaults there)
     method = "hierarchical"   # hierarchical | direct
-    eps = 0.05                # solid-angle threshold (steradians), > 0
+    eps = 0.05                # solid-angle threshold (steradians), > 0; absent: the plan's (0.1 for the white
+                              # kernels, 0.05 otherwise: jaxsss.render.plan.EPS_WHITE, EPS_DEFAULT)
     density = 1.0             # multiplier on the sample density A / (pi l_u^2) (x2 for the white kernels), > 0
     max_samples = 200000      # >= 1
     photons = 200000          # photons traced by --method photon, >= 1
@@ -275,7 +276,7 @@ class RenderSettings:
     """Renderer knobs (see the module schema for ranges)."""
 
     method: str = "hierarchical"
-    eps: float = 0.05
+    eps: float | None = None  # None: the plan's (jaxsss.render.plan.EPS_WHITE, EPS_DEFAULT)
     density: float = 1.0
     max_samples: int = 200_000
     photons: int = 200_000

@@ -283,14 +283,18 @@ def test_shifted_pair_is_the_profile_about_the_shifted_entry(skin_kernel):
     np.testing.assert_allclose(np.asarray(kernel.sources(short))[0, 1, 2], shift * [0.25, 0.5, 1.0], rtol=1e-12)
 
 
-def _scene(material):
-    return parse_scene({
+def _scene_dict(material):
+    return {
         "mesh": {"builtin": "sphere", "radius": 5.0, "subdivisions": 3},
         "material": material,
         "light": [{"type": "point", "position": [-20.0, -10.0, 10.0], "intensity": 300.0}],
         "camera": {"position": [0.0, -30.0, 0.0], "look_at": [0.0, 0.0, 0.0], "fov_deg": 25.0, "resolution": [8, 8]},
         "render": {"density": 0.3},
-    }, path="<test>")
+    }
+
+
+def _scene(material):
+    return parse_scene(_scene_dict(material), path="<test>")
 
 
 def test_the_plan_chooses_the_kernel_and_counts_single_scattering_once():
@@ -324,6 +328,23 @@ def test_auto_takes_the_family_wherever_it_covers_the_medium(g, eta, kernel, nee
     assert plan.bssrdf == kernel and item.name == f"bssrdf: {kernel}"
     assert needle in item.reason and "make_white_tables" not in item.reason
     assert plan.single_scattering == (kernel == "dipole")
+
+
+def test_the_plan_picks_eps_by_kernel_unless_the_scene_or_caller_sets_it():
+    """No ``[render].eps``: the white kernels' EPS_WHITE (their error against transport dwarfs the sum's), the dipole's
+    EPS_DEFAULT; the scene's value and the caller's override it."""
+    from jaxsss.render.plan import EPS_DEFAULT, EPS_WHITE
+
+    skin = {"sigma_a": [0.032, 0.17, 0.48], "sigma_s_prime": [0.74, 0.88, 1.01], "eta": 1.0}
+    scene = _scene(skin)
+    assert scene.render.eps is None
+    white, dipole = make_plan(scene, bssrdf="auto"), make_plan(scene, bssrdf="dipole")
+    assert white.eps == EPS_WHITE == 0.1 and dipole.eps == EPS_DEFAULT == 0.05
+    assert "eps = 0.1 sr (Eq. 12) (the white-oblique kernel's" in white.items[0].reason
+    assert make_plan(scene, bssrdf="auto", eps=0.02).eps == 0.02
+    fixed = parse_scene({**{k: v for k, v in _scene_dict(skin).items() if k != "render"}, "render": {"eps": 0.3}},
+                        path="<test>")
+    assert make_plan(fixed, bssrdf="auto").eps == 0.3 and make_plan(fixed).eps == 0.3
 
 
 def test_bad_kernel_requests_name_the_argument_and_range():

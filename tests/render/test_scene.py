@@ -359,6 +359,6 @@ def test_blockers_are_parsed_and_noted_by_the_plan():
 def test_scene_with():
     scene = parse_scene(copy.deepcopy(BASE))
     faster = scene_with(scene, render=RenderSettings(eps=0.2))
-    assert faster.render.eps == 0.2 and faster.mesh is scene.mesh and scene.render.eps == 0.05
+    assert faster.render.eps == 0.2 and faster.mesh is scene.mesh and scene.render.eps is None  # None: the plan's
     with pytest.raises(ValueError, match="valid: path, mesh"):
         scene_with(scene, renderer=None)
