@@ -121,20 +121,29 @@ rows the albedo ``alpha'`` of :data:`SHIFT_ALBEDO`, columns the incidence cosine
 as the first moment of the exit positions in Monte Carlo (``jaxsss.mc.simulate`` with ``xy_edges``, 1e5 photons,
 g = 0, eta = 1; ``python -m jaxsss.render.make_oblique_tables --shifts`` reprints it). Wang and Jacques' diffusion
 estimate ``3 D sin theta_t`` would be 1 everywhere: it overestimates the shift of absorbing media at steep incidence
-by up to 45%. Interpolated linearly in ``alpha'`` (held beyond the ends); in ``g`` with :data:`SHIFT_RATIO_G09`
+by up to 45%. Interpolated linearly in ``alpha'`` (held beyond the ends); in ``g`` with :data:`SHIFT_RATIO_FORWARD`
 (:func:`shift_ratio_table`)."""
-SHIFT_RATIO_G09 = ((0.960, 0.960, 0.877, 0.738),
-                   (0.935, 0.896, 0.773, 0.611),
-                   (0.931, 0.862, 0.726, 0.563),
-                   (0.918, 0.854, 0.716, 0.555),
-                   (0.922, 0.847, 0.721, 0.565),
-                   (0.916, 0.858, 0.737, 0.586),
-                   (0.924, 0.863, 0.754, 0.602))
-""":data:`SHIFT_RATIO` for ``g = 0.9`` (the same measurement, ``--shifts --g 0.9``; ``sigma_s = 10/mm``). Forward
-scattering moves the light further at steep incidence (0.92-0.96 at cos 0.75, against 0.58-0.87) and less at grazing
-incidence (0.56-0.74 at cos 0.1, against 0.90-0.97): there much of it leaves near the entry point after a few
-small-angle deflections, forwards and grazing (:mod:`jaxsss.render.exit_direction`). With the ``g = 0`` table the
-g09_sphere's terminator band was 11-19% too bright (docs/path_tracer.md, "Forward scattering's exit direction")."""
+SHIFT_RATIO_FORWARD = {
+    0.5: ((0.781, 0.823, 0.850, 0.870), (0.754, 0.783, 0.792, 0.791), (0.769, 0.793, 0.780, 0.753),
+          (0.792, 0.798, 0.778, 0.748), (0.824, 0.820, 0.798, 0.752), (0.885, 0.860, 0.821, 0.770),
+          (0.923, 0.884, 0.838, 0.779)),
+    0.7: ((0.867, 0.880, 0.866, 0.825), (0.850, 0.829, 0.785, 0.716), (0.847, 0.825, 0.759, 0.665),
+          (0.854, 0.818, 0.749, 0.657), (0.858, 0.830, 0.763, 0.659), (0.884, 0.853, 0.767, 0.671),
+          (0.904, 0.870, 0.787, 0.686)),
+    0.9: ((0.960, 0.960, 0.877, 0.738), (0.935, 0.896, 0.773, 0.611), (0.931, 0.862, 0.726, 0.563),
+          (0.918, 0.854, 0.716, 0.555), (0.922, 0.847, 0.721, 0.565), (0.916, 0.858, 0.737, 0.586),
+          (0.924, 0.863, 0.754, 0.602)),
+    0.95: ((0.995, 0.983, 0.881, 0.715), (0.971, 0.912, 0.769, 0.583), (0.943, 0.873, 0.717, 0.536),
+           (0.928, 0.857, 0.710, 0.532), (0.918, 0.853, 0.716, 0.541), (0.917, 0.864, 0.738, 0.566),
+           (0.935, 0.864, 0.750, 0.587)),
+}
+""":data:`SHIFT_RATIO` for forward-scattering media, by ``g`` (the same measurement, ``--shifts --g G``; ``sigma_s'
+= 1/mm``). Forward scattering moves the light further at steep incidence (g 0.9: 0.92-0.96 at cos 0.75, against
+0.58-0.87 at g 0) and less at grazing incidence (0.56-0.74 at cos 0.1, against 0.90-0.97): there much of it leaves
+near the entry point after a few small-angle deflections, forwards and grazing (:mod:`jaxsss.render.exit_direction`).
+With the ``g = 0`` table the g09_sphere's terminator band was 11-19% too bright (docs/path_tracer.md, "Forward
+scattering's exit direction"). Linear in ``g`` between these nodes and ``g = 0``: the g 0.5 and 0.7 tables lie within
+3% of the line between g 0 and g 0.9 (measured after it; taken as nodes all the same)."""
 CURVATURE_WHY = ("the surface's curvature per pair (jaxsss.render.curvature: a convex object lets more light out "
                  "than a half-space; flat surfaces are unchanged); light that crosses the object without interacting "
                  "(jaxsss.render.passage: each light's refracted ray traced to where it leaves, the flux weighted by "
@@ -628,11 +637,14 @@ class WhiteKernel(eqx.Module):
 
 
 def shift_ratio_table(g: float) -> np.ndarray:
-    """``(len(SHIFT_ALBEDO), len(OBLIQUE_MUS))`` forward-shift ratios at anisotropy ``g``: linear between
-    :data:`SHIFT_RATIO` (``g = 0``) and :data:`SHIFT_RATIO_G09` (``g = 0.9``), held beyond them."""
-    w = min(max(float(g) / 0.9, 0.0), 1.0)
+    """``(len(SHIFT_ALBEDO), len(OBLIQUE_MUS))`` forward-shift ratios at anisotropy ``g``: linear between the
+    measured tables (:data:`SHIFT_RATIO` at ``g = 0``, :data:`SHIFT_RATIO_FORWARD`), held beyond the last."""
+    nodes = (0.0,) + tuple(SHIFT_RATIO_FORWARD)
+    tables = np.stack([np.asarray(SHIFT_RATIO)] + [np.asarray(t) for t in SHIFT_RATIO_FORWARD.values()])
     # Linear in g between the measured tables.
-    return (1.0 - w) * np.asarray(SHIFT_RATIO) + w * np.asarray(SHIFT_RATIO_G09)
+    w = np.interp(float(g), nodes, np.arange(len(nodes), dtype=float))
+    i = min(int(w), len(nodes) - 2)
+    return (1.0 - (w - i)) * tables[i] + (w - i) * tables[i + 1]
 
 
 def shift_reach(medium: Medium, bssrdf: str, mus: tuple = KERNEL_MUS) -> float:

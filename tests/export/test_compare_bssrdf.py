@@ -126,7 +126,7 @@ def test_forward_scattering_sphere_against_its_path_traced_reference():
     Mitsuba 8192 spp (1347 s) whose own per-pixel noise is 8.4 / 8.8 / 9.4% (mare_lit of the reference against
     the truth, estimated from its two seeded halves): most of mare_lit here is that noise. Achieved (2026-11-27, the
     white kernels with the forward-scattering exit distribution, jaxsss.render.exit_direction, and the g = 0.9 forward
-    shift, bssrdf.SHIFT_RATIO_G09): mare_lit 0.097 / 0.099 / 0.106, band 0.230 / 0.246 / 0.277, sums 0.984 / 0.982 /
+    shift, bssrdf.SHIFT_RATIO_FORWARD): mare_lit 0.097 / 0.099 / 0.106, band 0.230 / 0.246 / 0.277, sums 0.984 / 0.982 /
     0.984, the signed error within 2.6% in every bin of the cosine to the light from 0.1 up (a constant 5.5-6% per
     pixel on top of the reference's noise would give these mare_lit). With the g = 0 shift: 0.102 / 0.106 / 0.112,
     band bias +11 / +18 / +19%. With isotropic scattering's exit distribution: 0.36 / 0.43 / 0.51, band +121 to

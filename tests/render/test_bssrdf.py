@@ -508,3 +508,18 @@ def test_albedo_correction_makes_the_node_mix_reflect_chandrasekhars_total(a):
     h = 1e-6 * min(a, 1 - a)
     fd = (float(f(jnp.array([a + h]))) - float(f(jnp.array([a - h])))) / (2 * h)
     np.testing.assert_allclose(grad, fd, rtol=1e-5)
+
+
+def test_shift_ratio_table_is_the_measured_table_at_its_nodes_and_linear_between():
+    """The forward shift by g: each measured table at its node (g = 0: SHIFT_RATIO), the midpoint between two nodes
+    their mean, and held outside [0, 0.95]; forward scattering shifts grazing light less than isotropic scattering
+    (physical invariant of the measurement: cos 0.1 column, every albedo)."""
+    assert np.array_equal(bssrdf.shift_ratio_table(0.0), np.asarray(bssrdf.SHIFT_RATIO))
+    for g, table in bssrdf.SHIFT_RATIO_FORWARD.items():
+        np.testing.assert_allclose(bssrdf.shift_ratio_table(g), np.asarray(table), rtol=1e-12)
+    mid = 0.5 * (np.asarray(bssrdf.SHIFT_RATIO_FORWARD[0.7]) + np.asarray(bssrdf.SHIFT_RATIO_FORWARD[0.9]))
+    np.testing.assert_allclose(bssrdf.shift_ratio_table(0.8), mid, rtol=1e-12)
+    np.testing.assert_allclose(bssrdf.shift_ratio_table(0.99), np.asarray(bssrdf.SHIFT_RATIO_FORWARD[0.95]))
+    np.testing.assert_allclose(bssrdf.shift_ratio_table(-0.5), np.asarray(bssrdf.SHIFT_RATIO))
+    grazing = OBLIQUE_MUS.index(0.1)
+    assert np.all(bssrdf.shift_ratio_table(0.9)[:, grazing] < np.asarray(bssrdf.SHIFT_RATIO)[:, grazing])
