@@ -165,9 +165,9 @@ FORWARD_G = 0.5
 exit distribution is isotropic scattering's (:func:`refracted_exit_distribution`), and with it the oblique tables of
 a forward-scattering medium put forward-grazing light where the eye sees it. At ``eta = 1`` the white kernels exit
 by the forward-scattering table (:mod:`jaxsss.render.exit_direction`) and ``auto`` takes them for every ``g``:
-against Mitsuba's g09_sphere (g = 0.9) mare_lit 0.102 / 0.106 / 0.112, sums 0.98, against the dipole's 0.152 / 0.160
-/ 0.173, sums 0.93 / 0.90 / 0.88 (with the isotropic exit: 0.36-0.51; docs/path_tracer.md, "Forward scattering's
-exit direction")."""
+against Mitsuba's g09_sphere (g = 0.9) mare_lit 0.097 / 0.099 / 0.106 (most of it the reference's own noise), sums
+0.98, against the dipole's 0.152 / 0.160 / 0.173, sums 0.93 / 0.90 / 0.88 (with the isotropic exit: 0.36-0.51;
+docs/path_tracer.md, "Forward scattering's exit direction")."""
 GRID_RHO_MIN = 1e-3
 GRID_RHO_MAX = 10**3.5
 GRID_PER_DECADE = 40
@@ -290,8 +290,8 @@ def choose_bssrdf(medium: Medium, request: str = "auto") -> tuple[str, str]:
 
     ``request`` is one of :data:`BSSRDFS`; ``"auto"`` takes ``white-oblique`` inside the white Monte Carlo family's
     range (``g`` in [0, 0.95], ``eta`` in [1, 1.6]) except for ``g >= FORWARD_G`` at ``eta != 1``, and the dipole
-    otherwise. A white request
-    outside the family's range is a ``ValueError`` naming the argument, its value and the range."""
+    otherwise. A white request outside the family's range is a ``ValueError`` naming the argument, its value and the
+    range."""
     from jaxsss.mc.white_family import check_covered, covers
 
     if request not in BSSRDFS:

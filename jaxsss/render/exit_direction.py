@@ -7,7 +7,7 @@ for isotropic scattering, where the reflected radiance has no azimuthal dependen
 along the beam's own azimuth. For ``g = 0.9``, albedo 0.95, light entering at ``mu_i = 0.1`` (Monte Carlo, below):
 two thirds of the reflectance leaves in the forward third of azimuths and one seventh in the backward third, and the
 azimuth-averaged radiance at ``mu_o = 0.7`` is 0.65 of the isotropic ``X``. The total reflectance differs from the
-isotropic equivalent's by only 4-8% (``sigma_s' = sigma_s (1 - g)`` holds for the totals, not for the directions).
+isotropic equivalent's by only -4 to +8% (``sigma_s' = sigma_s (1 - g)`` holds for the totals, not for the directions).
 
 **The table.** The radiance leaving a half-space lit at ``mu_i``, relative to a Lambertian exit of the same total,
 
