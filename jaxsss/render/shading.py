@@ -32,7 +32,7 @@ from jaxsss.render.bssrdf import exit_model_for, exit_radiance_nodes
 from jaxsss.render.exit_direction import azimuth_harmonics
 from jaxsss.render.camera import camera_rays
 from jaxsss.render.lights import light_field
-from jaxsss.render.rays import OBJECT_TRANSLUCENT
+from jaxsss.render.rays import OBJECT_TRANSLUCENT, Hits
 
 __all__ = ["CREASE_DEG", "EDGE_CONTRAST", "EDGE_TURN_DEG", "ShadedPoints", "ShadingPoints", "constant_image",
            "edge_pixels", "exit_azimuth", "face_the_eye", "image_stats", "point_shading", "shaded_fields",
@@ -101,7 +101,7 @@ CREASE_DEG = 30.0
 is more than this many degrees from the centre's."""
 
 
-def edge_pixels(scene, geometry, resolution=None, shadows: bool = True) -> np.ndarray:
+def edge_pixels(scene, geometry, resolution=None, shadows: bool = True, centre_hits=None) -> np.ndarray:
     """``(H, W)`` bool: the translucent pixels whose centre misrepresents them, from the pixel centres' geometry (no
     material: the shaded points are the same for every medium).
 
@@ -121,10 +121,12 @@ def edge_pixels(scene, geometry, resolution=None, shadows: bool = True) -> np.nd
         geometry: its :class:`~jaxsss.render.rays.SceneGeometry`.
         resolution: ``(W, H)`` overriding the camera's, or None.
         shadows: trace shadow rays for the irradiance (the plan's ``shadows``).
+        centre_hits: the :class:`~jaxsss.render.rays.Hits` of the pixel centres' rays (``camera_rays(...,
+            spp=1)``, every pixel) when the caller has traced them already; else they are traced here.
     """
     rays = camera_rays(scene.camera, resolution, spp=1)
     h, w = rays.shape
-    hits = geometry.first_hit(rays.origins, rays.directions)
+    hits = geometry.first_hit(rays.origins, rays.directions) if centre_hits is None else centre_hits
     on = hits.obj == OBJECT_TRANSLUCENT
     direct = np.zeros(h * w)
     normal = np.full((h * w, 3), np.nan)
@@ -168,18 +170,33 @@ def shading_points(scene, geometry, plan, resolution, pixel_mask, n_channels: in
         n_channels: ``C``.
     """
     rays = camera_rays(scene.camera, resolution, seed=scene.render.seed)
+    traced = None  # (rays, their hits) already traced, when the edge test traced the pixel centres
     if scene.camera.edge_spp > rays.spp:
+        # At one ray per pixel the camera's rays are the centres the edge test traces: trace them once.
+        centre = geometry.first_hit(rays.origins, rays.directions) if rays.spp == 1 else None
         # Edge pixels: edge_spp rays instead of spp (edge_pixels).
-        edges = edge_pixels(scene, geometry, resolution, plan.shadows).reshape(-1)
+        edges = edge_pixels(scene, geometry, resolution, plan.shadows, centre_hits=centre).reshape(-1)
+        if centre is not None:
+            traced = len(rays.pixel), centre
         if edges.any():
-            rays = rays.where(~edges[rays.pixel]).join(camera_rays(
+            stay = ~edges[rays.pixel]
+            rays = rays.where(stay).join(camera_rays(
                 scene.camera, resolution, seed=scene.render.seed + 1, pixels=np.flatnonzero(edges),
                 spp=scene.camera.edge_spp))
+            if traced is not None:
+                traced = int(stay.sum()), Hits(*(a[stay] for a in centre))
     h, w = rays.shape
     keep = np.ones(len(rays.pixel), dtype=bool) if pixel_mask is None else np.asarray(pixel_mask).reshape(-1)[
         rays.pixel]
-    hits = geometry.first_hit(rays.origins[keep], rays.directions[keep])
     ray_idx = np.flatnonzero(keep)
+    if traced is None:
+        hits = geometry.first_hit(rays.origins[keep], rays.directions[keep])
+    else:
+        # The first n_done rays are traced: their kept hits, then the kept rest (the edge pixels' rays) traced.
+        n_done, done = traced
+        more = n_done + np.flatnonzero(keep[n_done:])
+        rest = geometry.first_hit(rays.origins[more], rays.directions[more])
+        hits = Hits(*(np.concatenate([a[keep[:n_done]], b]) for a, b in zip(done, rest)))
     constant = constant_image(scene, geometry, rays, ray_idx, hits, n_channels)
     on_obj = np.flatnonzero(hits.obj == OBJECT_TRANSLUCENT)
     q_pos = hits.position[on_obj]
