@@ -24,7 +24,8 @@ This package is installed with ``jaxsss`` and imports only its public API (``imp
 The Rd -> alpha' inversion and the (Rd, l_d) reparameterisation are closed-form physics and live in
 :mod:`jaxsss.reflectance` and :mod:`jaxsss.reparam`. - :func:`fit_image`: sigma_a and sigma_s' per channel from a rendered image (:class:`ImageFit`); a channel whose
 ``l_d`` the views do not resolve (under :data:`RESOLVED_LD_PIXELS` pixels, :func:`pixel_footprint`) is reported as
-fixing ``Rd`` only; ``model_error=RENDER_MODEL_ERROR`` states the renderer's accuracy for a target it did not make.
+fixing ``Rd`` only; ``model_error=RENDER_MODEL_ERROR`` (a :class:`ModelError`, :mod:`fitting.discrepancy`) states
+the renderer's accuracy against real transport, per band of the cosine to each light, for a target it did not make.
 """
 
 import jaxsss  # noqa: F401  (float64 before anything else)
@@ -33,7 +34,8 @@ import jaxsss  # noqa: F401  (float64 before anything else)
 # profile fits only, not the image, replay and Monte Carlo fits (~1 s of imports on this machine).
 _LAZY = {
     "ImageFit": "fitting.image_fit", "fit_image": "fitting.image_fit", "pixel_footprint": "fitting.image_fit",
-    "RESOLVED_LD_PIXELS": "fitting.image_fit", "RENDER_MODEL_ERROR": "fitting.image_fit",
+    "RESOLVED_LD_PIXELS": "fitting.image_fit", "RENDER_MODEL_ERROR": "fitting.discrepancy",
+    "ModelError": "fitting.discrepancy",
     "COLUMNS": "fitting.io", "ProfileData": "fitting.io", "ProfileFileError": "fitting.io",
     "load_profile_npy": "fitting.io", "read_profile": "fitting.io", "read_profile_csv": "fitting.io",
     "McoLayer": "fitting.mco", "McoRun": "fitting.mco", "read_mco": "fitting.mco",
@@ -84,6 +86,7 @@ __all__ = [
     "LeastSquaresSolver",
     "McoLayer",
     "McoRun",
+    "ModelError",
     "ProfileData",
     "ProfileFileError",
     "ProfileFit",

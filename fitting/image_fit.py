@@ -25,13 +25,14 @@ cluster-robust (sandwich) one over spatial blocks, ``(J^T J)^-1 (sum_b g_b g_b^T
 blocks with fitted pixels): independent pixel noise gives about the same as the model-based one, while a smooth misfit
 that pulls the parameters one way on one side of the object and another way elsewhere widens it (what the parameters
 absorb alike everywhere leaves no trace in the residuals, and no estimate from them can show it). That part needs a
-statement of the renderer's accuracy: ``model_error`` is the relative brightness error the render method may have
-against the real light transport, per channel and alike over the image (a model discrepancy, Kennedy and O'Hagan
-2001). Its effect on the estimates, ``(J^T J)^-1 J^T d_c`` per unit error in channel ``c`` (``d_c`` the model's
-image in residual units on that channel's rows), enters the covariance with variance ``model_error^2``. It is 0 by
+statement of the renderer's accuracy: ``model_error`` (a model discrepancy, Kennedy and O'Hagan 2001;
+:mod:`fitting.discrepancy`) is the relative error the render method may have against the real light transport, alike
+over the image per channel (its brightness) and, with a :class:`fitting.ModelError`, alike over each band of the
+cosine to each light (the terminator, where the blur that separates ``sigma_a`` from ``sigma_s'`` is seen and where
+the renderer is least accurate). Each mode's effect on the estimates, ``(J^T J)^-1 J^T d_j`` per unit error (``d_j``
+the model's image in residual units on the mode's rows), enters the covariance with the mode's variance. It is 0 by
 default (fitting the renderer's own images); for a photograph or a path-traced image, the renderer's measured
-accuracy is the honest value (``docs/path_tracer.md``: summed radiance within 2-3% of Mitsuba on the validated
-scenes, :data:`RENDER_MODEL_ERROR`). A channel is
+accuracy is the honest value (:data:`RENDER_MODEL_ERROR`, measured against Mitsuba). A channel is
 **identifiable** when both coefficients have relative standard errors at most :data:`REL_STDERR_LIMIT` and their
 correlation is at most :data:`fitting.CORRELATION_LIMIT`, and the fitted ``l_d`` spans at least
 :data:`RESOLVED_LD_PIXELS` pixels on the object in the finest view (:func:`pixel_footprint`); otherwise the result's
@@ -56,10 +57,11 @@ import optimistix as optx
 import jaxsss
 from jaxsss._config import compile_bound_options
 from jaxsss.validate import trusted_traces
+from fitting.discrepancy import RENDER_MODEL_ERROR, ModelError, discrepancy_modes, light_key
 from fitting.result import CORRELATION_LIMIT
 from fitting.solvers import resolve_solver
 
-__all__ = ["LD_CANDIDATES_MM", "RD_CANDIDATES", "REL_STDERR_LIMIT", "RENDER_MODEL_ERROR", "ImageFit",
+__all__ = ["LD_CANDIDATES_MM", "RD_CANDIDATES", "REL_STDERR_LIMIT", "RENDER_MODEL_ERROR", "ImageFit", "ModelError",
            "fit_image"]
 
 RD_CANDIDATES = (0.2, 0.5, 0.8, 0.95)
@@ -67,11 +69,6 @@ LD_CANDIDATES_MM = (0.3, 1.0, 3.0, 10.0)
 """The start grid: 16 (Rd, l_d) pairs per channel, each a full image evaluation on the fit's pixels."""
 REL_STDERR_LIMIT = 0.3
 """A coefficient whose relative standard error exceeds this is reported as not constrained by the views."""
-RENDER_MODEL_ERROR = 0.03
-"""The renderer's relative brightness error against real light transport, to pass as ``fit_image(model_error=...)``
-for a target the renderer did not make: the default BSSRDF's summed radiance is within 2-3% of Mitsuba's volumetric
-path tracer on the validated scenes (skin1 sphere under a point light +2.1 to +2.6%, under skies -2.1 to +1.7%,
-marble teapot +0.2 to +2.7%; docs/path_tracer.md), and the per-pixel bias on the lit side is 1-3%."""
 RESOLVED_LD_PIXELS = 2.0
 """The fitted ``l_d`` must span at least this many pixels on the object (:func:`pixel_footprint`, the finest view)
 for ``sigma_a`` and ``sigma_s'`` to be reported apart: a blur narrower than two pixels is not resolved, and the split
@@ -259,12 +256,13 @@ FD_STEP = 1e-5
 
 
 def _uncertainty(theta, residuals, args, n_res: int, absolute: bool, blocks: np.ndarray,
-                 weighted_target: np.ndarray | None = None, model_error: float = 0.0):
+                 discrepancy=None):
     """Standard errors and ``(Rd, l_d)`` at the solution (module docstring). The Jacobian is taken by central
     differences of the already compiled ``residuals`` (2 p evaluations): ``jax.jacfwd`` gives the same to 1e-10 but
-    costs a compilation of its own, longer than the whole fit on small images. ``weighted_target``: ``(m,)`` the
-    target times its weight on the fitted rows (else 0), from which the ``model_error`` term takes the model image in
-    residual units (the residual plus it)."""
+    costs a compilation of its own, longer than the whole fit on small images. ``discrepancy``: None, or ``(weighted
+    target (m,), cosines (m / C, L), ModelError)``: the target times its weight on the fitted rows (else 0), from
+    which the model image in residual units is the residual plus it, each pixel's cosine to the views' distinct
+    lights, and the stated error (:mod:`fitting.discrepancy`)."""
     res = np.asarray(residuals(theta, args))
     steps = FD_STEP * np.eye(theta.shape[0])
     jac = np.stack([(np.asarray(residuals(theta + h, args)) - np.asarray(residuals(theta - h, args))) / (2 * FD_STEP)
@@ -285,13 +283,12 @@ def _uncertainty(theta, residuals, args, n_res: int, absolute: bool, blocks: np.
         cov = cov * np.outer(scale, scale)
     else:
         scale = np.full(p, np.nan)
-    if model_error > 0.0 and weighted_target is not None:
-        # Model discrepancy: a uniform relative error e_c in channel c moves theta by -(J^T J)^+ J^T d_c e_c.
-        model = res + weighted_target  # the model image in residual units
-        d = np.zeros((len(model), c))
-        d[np.arange(len(model)), np.arange(len(model)) % c] = model
-        shift = bread @ (jac.T @ d)  # (p, C): d theta per unit relative error of each channel
-        cov = cov + model_error**2 * shift @ shift.T
+    if discrepancy is not None:
+        weighted_target, cosines, error = discrepancy
+        # Model discrepancy: a relative error e_j of shape d_j moves theta by -(J^T J)^+ J^T d_j e_j.
+        modes, sigma = discrepancy_modes(res + weighted_target, c, cosines, error)
+        shift = bread @ (jac.T @ modes)  # (p, M): d theta per unit relative error of each mode
+        cov = cov + (shift * sigma**2) @ shift.T
     se_log = np.sqrt(np.maximum(np.diag(cov), 0.0))
     corr = cov[np.arange(c), c + np.arange(c)] / np.maximum(se_log[:c] * se_log[c:], 1e-300)
 
@@ -388,9 +385,32 @@ def _identifiability(se_log, corr, rd, se_rd, ld=None, footprint=None):
     return ok, tuple(warnings)
 
 
+def _weighted_target(views) -> np.ndarray:
+    """``(m,)`` the target times its weight on every view's fitted rows, 0 elsewhere (rows as the residuals')."""
+    return np.concatenate([np.where(np.asarray(mask)[..., None], np.asarray(target) * np.asarray(weight), 0.0)
+                           .reshape(-1) for _, target, weight, mask in views])
+
+
+def _view_cosines(scenes, views) -> np.ndarray:
+    """``(m / C, L)`` each pixel's cosine to each distinct light of the views (:func:`fitting.discrepancy.light_key`),
+    NaN where the light is not in the pixel's view, has no terminator, or the pixel is not fitted."""
+    from jaxsss.export.compare import pixel_light_cosines
+
+    keys = list(dict.fromkeys(light_key(light) for sc in scenes for light in sc.lights))
+    out = []
+    for sc, (_, _, _, mask) in zip(scenes, views):
+        _, cos = pixel_light_cosines(sc)
+        block = np.full(cos.shape[:2] + (len(keys),), np.nan)
+        for k, light in enumerate(sc.lights):
+            block[..., keys.index(light_key(light))] = cos[..., k]
+        block[~np.asarray(mask)] = np.nan
+        out.append(block.reshape(-1, len(keys)))
+    return np.concatenate(out)
+
+
 def fit_image(scene, target_image, *, method: str = "hierarchical", max_pixels: int | None = 4096,
               target_stderr=None, solver: str = "levenberg_marquardt", rtol: float = 1e-8, atol: float = 1e-8,
-              max_steps: int = 100, seed: int = 0, progress: bool = False, model_error: float = 0.0,
+              max_steps: int = 100, seed: int = 0, progress: bool = False, model_error: float | ModelError = 0.0,
               **options) -> ImageFit:
     """Fit ``sigma_a`` and ``sigma_s'`` (per channel) of the scene's material to ``target_image``.
 
@@ -415,9 +435,11 @@ def fit_image(scene, target_image, *, method: str = "hierarchical", max_pixels: 
             units of its standard errors, so ``atol = 1e-8`` is far below any meaningful change; at ``1e-10`` a
             converged fit went on for 5-13 more steps of rounding noise (14-23 steps instead of 9 in ``jaxsss run``).
         seed: pixel-subset seed.
-        model_error: the render method's relative brightness error against the real light transport, per channel
-            (module docstring), added to the covariance; 0 (default) for the renderer's own images,
-            :data:`RENDER_MODEL_ERROR` for a photograph or a path-traced image. In ``[0, 1)``.
+        model_error: the render method's error against the real light transport (module docstring), added to the
+            covariance: a number (a relative brightness error alike over the image, in ``[0, 1)``) or a
+            :class:`fitting.ModelError` (with errors per band of the cosine to each light); 0 (default) for the
+            renderer's own images, :data:`RENDER_MODEL_ERROR` (measured against Mitsuba) for a photograph or a
+            path-traced image.
 
     Returns:
         An :class:`ImageFit`; check ``converged``, ``identifiable`` and ``warnings``.
@@ -425,8 +447,7 @@ def fit_image(scene, target_image, *, method: str = "hierarchical", max_pixels: 
     from jaxsss.render import prepare_method, resolve_method
 
     scenes, targets, stderrs = _as_views(scene, target_image, target_stderr)
-    if not (np.isfinite(model_error) and 0.0 <= model_error < 1.0):
-        raise ValueError(f"fit_image(model_error={model_error}) is outside the allowed range [0, 1) (a relative error)")
+    error = ModelError.coerce(model_error, "fit_image")
     entry = resolve_method(method)
     mediums = [entry.params(s) for s in scenes]
     eta, g, fresnel = mediums[0].eta, mediums[0].g, mediums[0].fresnel
@@ -480,13 +501,10 @@ def fit_image(scene, target_image, *, method: str = "hierarchical", max_pixels: 
     res = residuals(theta, (tuple(relative), eta, g, fresnel))
     rms = jnp.sqrt(jnp.sum(res**2) / float(n_pixels * n_channels))
     t0 = time.perf_counter()
-    # The weighted target on the fitted rows: with the residual, the model image in residual units.
-    weighted_target = np.concatenate(
-        [np.where(np.asarray(mask)[..., None], np.asarray(target) * np.asarray(weight), 0.0).reshape(-1)
-         for _, target, weight, mask in views]) if model_error > 0.0 else None
+    discrepancy = (_weighted_target(views), _view_cosines(scenes, views), error) if error.stated else None
     se_log, corr, rd_ld, se_rd_ld, coupling, inflation, n_blocks = _uncertainty(
         theta, residuals, args, n_pixels * n_channels, target_stderr is not None, _blocks(views, n_channels),
-        weighted_target, model_error)
+        discrepancy)
     seconds["stderr"] = time.perf_counter() - t0
     c = n_channels
     ok, warnings = _identifiability(se_log, corr, rd_ld[:c], se_rd_ld[:c], rd_ld[c:],

@@ -25,7 +25,7 @@ from jaxsss.render.camera import camera_rays
 from jaxsss.render.rays import OBJECT_TRANSLUCENT, SceneGeometry
 
 __all__ = ["BAND_COS", "COS_BINS", "LIT_FRACTION", "PixelGeometry", "compare_images", "error_by_cos", "error_map",
-           "jaxsss_coverage", "pixel_geometry"]
+           "jaxsss_coverage", "pixel_geometry", "pixel_light_cosines"]
 
 BAND_COS = 0.1
 """The terminator band is ``|cos(normal, to light)| <= BAND_COS``."""
@@ -64,9 +64,11 @@ def jaxsss_coverage(scene, spp: int = 64, seed: int = 0, geometry=None) -> np.nd
     return np.bincount(rays.pixel, weights=on, minlength=h * w).reshape(h, w) / rays.spp
 
 
-def pixel_geometry(scene, coverage_spp: int = 64) -> PixelGeometry:
-    """Pixel-centre hits, light cosines and jaxsss's coverage for ``scene``'s camera."""
-    geometry = _geometry(scene)
+def pixel_light_cosines(scene, geometry=None) -> tuple[np.ndarray, np.ndarray]:
+    """``(hit (H, W), cos (H, W, L))``: whether each pixel-centre ray's first hit is the translucent object, and there
+    the cosine between the shading normal and the direction to each light (NaN off the object, and for an environment
+    light, which has no terminator). Area lights and spots count from their centre."""
+    geometry = geometry or _geometry(scene)
     rays = camera_rays(dataclasses.replace(scene.camera, spp=1))
     hits = geometry.first_hit(rays.origins, rays.directions)
     h, w = rays.shape
@@ -85,8 +87,14 @@ def pixel_geometry(scene, coverage_spp: int = 64) -> PixelGeometry:
                 to = np.asarray(light.position, dtype=np.float64) - p
                 to = to / np.linalg.norm(to, axis=1, keepdims=True)
             cos[idx, k] = np.einsum("ij,ij->i", n, to)
-    return PixelGeometry(on.reshape(h, w), cos.reshape(h, w, -1), jaxsss_coverage(scene, coverage_spp,
-                                                                                  geometry=geometry))
+    return on.reshape(h, w), cos.reshape(h, w, -1)
+
+
+def pixel_geometry(scene, coverage_spp: int = 64) -> PixelGeometry:
+    """Pixel-centre hits, light cosines (:func:`pixel_light_cosines`) and jaxsss's coverage for ``scene``'s camera."""
+    geometry = _geometry(scene)
+    hit, cos = pixel_light_cosines(scene, geometry)
+    return PixelGeometry(hit, cos, jaxsss_coverage(scene, coverage_spp, geometry=geometry))
 
 
 def _masks(ref: np.ndarray, pixels: PixelGeometry, coverage, coverage_tol: float, lit_fraction: float,
