@@ -38,6 +38,24 @@ def test_render_benchmarks_are_registered():
     assert {"render_eps", "render_density", "render_bssrdf_sampling", "render_cache"} <= set(BENCHMARKS)
 
 
+def test_fit_path_traced_views_are_the_references_lit_pixels_weighted_by_their_noise():
+    """The fit benchmark's targets (its fits take minutes: run ``python -m benchmarks.fit_path_traced --quick``)."""
+    import numpy as np
+
+    from benchmarks import fit_path_traced
+
+    assert "fit_path_traced" in BENCHMARKS
+    _, target, stderr = fit_path_traced.load_view("skin1_sphere")
+    with np.load(fit_path_traced.REFERENCES / "skin1_sphere.npz") as f:
+        image, coverage = f["image"], f["coverage"]
+    lit = target[..., 1] > 0
+    assert target.shape == image.shape and 0.3 * lit.size < lit.sum() < coverage.sum()
+    np.testing.assert_array_equal(target[lit], image[lit])
+    assert np.all(coverage[lit] >= 0.999) and not np.any(target[~lit])
+    meta = json.loads((fit_path_traced.REFERENCES / "skin1_sphere.json").read_text())
+    np.testing.assert_allclose(stderr[lit], np.asarray(meta["noise_mare_lit"]) * image[lit])
+
+
 def test_render_eps_quick(tmp_path):
     assert render_eps.main(["--quick", "--out", str(tmp_path)]) == 0
     doc = _load(tmp_path, "render_eps")
