@@ -66,6 +66,39 @@ def fit_case(views, max_pixels: int, model_error) -> dict:
     return {"fit": fit, "rel": rel, "rel_se": rel_se, "z": np.abs(rel) / rel_se, "ok": ok, "seconds": seconds}
 
 
+def plot_errors(rows: list[dict], path: Path) -> Path:
+    """Each coefficient's relative error with +-2 standard error bars, one panel per case, the statements side by
+    side: the bars cross 0 where the standard errors are honest."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    cases = list(dict.fromkeys(r["setting"] for r in rows))
+    labels = [f"{k} {c}" for k in ("sigma_a", "sigma_s'") for c in "RGB"]
+    fig, axes = plt.subplots(1, len(cases), figsize=(5.5 * len(cases), 4.0), sharey=True, layout="constrained")
+    for ax, case in zip(np.atleast_1d(axes), cases):
+        for j, r in enumerate(x for x in rows if x["setting"] == case):
+            rel = np.array(r["rel_sigma_a"] + r["rel_sigma_s_prime"])
+            se = rel / np.where(rel != 0, np.array(r["z_sigma_a"] + r["z_sigma_s_prime"]) * np.sign(rel), 1.0)
+            ok = np.tile(r["identifiable"], 2)
+            x = np.arange(6) + (j - 0.5) * 0.3
+            for flag, face in ((True, f"C{j}"), (False, "none")):
+                m = ok == flag
+                ax.errorbar(x[m], rel[m], yerr=2 * np.abs(se[m]), fmt="o", color=f"C{j}", mfc=face, capsize=3,
+                            label=f"{r['method']}" + ("" if flag else " (not identifiable)") if m.any() else None)
+        ax.axhline(0.0, color="k", lw=0.8)
+        ax.axhspan(-0.05, 0.05, color="0.9", zorder=0)
+        ax.set_xticks(range(6), labels, rotation=30, fontsize=8)
+        ax.set_title(case, fontsize=9)
+        ax.legend(fontsize=7)
+    np.atleast_1d(axes)[0].set_ylabel("estimate / truth - 1, bars +-2 standard errors")
+    fig.suptitle("fit_image from Mitsuba references (grey: the 5% goal)", fontsize=10)
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+    return path
+
+
 def main(argv=None) -> int:
     args = parse_args(argv, __doc__.splitlines()[0])
     from fitting import RENDER_MODEL_ERROR
@@ -95,6 +128,7 @@ def main(argv=None) -> int:
              "bands = fitting.RENDER_MODEL_ERROR (level + terminator bands); level only = its level"]
     write_results(NAME, rows, args.out, quick=args.quick, notes=notes, connect=False,
                   title="fit_image from path-traced images: largest error of an identifiable channel")
+    plot_errors(rows, Path(args.out) / f"{NAME}{args.tag}_errors.png")
     return 0
 
 
