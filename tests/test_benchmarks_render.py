@@ -56,6 +56,28 @@ def test_fit_path_traced_views_are_the_references_lit_pixels_weighted_by_their_n
     np.testing.assert_allclose(stderr[lit], np.asarray(meta["noise_mare_lit"]) * image[lit])
 
 
+def test_curvature_transport_walk_reflects_chandrasekhars_albedo_and_a_sphere_more_far_away():
+    """The benchmark's transport walk (independent of the renderer): the half-space's total reflectance of a normal
+    pencil beam equals Chandrasekhar's directional albedo (exact for isotropic scattering at eta 1), and on a sphere
+    more light comes out far from the entry than on the plane (the ratio the renderer's curvature term models)."""
+    import numpy as np
+
+    from benchmarks import curvature_transport as ct
+    from jaxsss.render.bssrdf import directional_albedo
+
+    edges = np.array([0.0, 1.0, 3.0, 10.0, 60.0])
+    area = np.pi * (edges[1:] ** 2 - edges[:-1] ** 2)
+    plane, count = ct.pencil_beam_exitance("plane", 0.05, 0.95, 20_000, seed=1, edges=edges)
+    total = float(np.sum(plane * area))
+    exact = float(directional_albedo(1.0, 0.95))
+    assert abs(total - exact) < 0.015, (total, exact)  # ~5 standard errors at 2e4 photons
+    assert count.sum() > 10_000
+    ratio, se, n_min = ct.measured_ratio(0.061, 0.18, 16_000)
+    far = (np.asarray(ct.EDGES[:-1]) >= 14.0) & (n_min >= 100)
+    assert far.any() and np.all(ratio[far] - 3 * se[far] > 1.0), (ratio, se)
+    assert "curvature_transport" in BENCHMARKS
+
+
 def test_render_eps_quick(tmp_path):
     assert render_eps.main(["--quick", "--out", str(tmp_path)]) == 0
     doc = _load(tmp_path, "render_eps")

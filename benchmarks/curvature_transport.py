@@ -1,0 +1,148 @@
+"""The curvature ratio against transport: a pencil beam into an index-matched sphere and into a half-space.
+
+The renderer multiplies each (shaded point, sample) pair's half-space profile by the sphere-to-plane ratio of the
+diffusion dipole with a Kelvin image (:func:`jaxsss.render.curvature.curvature_ratio`). Here the ratio is measured
+by transport itself: an analogue Monte Carlo walk (isotropic scattering, ``g = 0``, ``eta = 1``, absorption by
+weight, roulette below a weight of 1e-3) of a pencil beam entering a sphere of radius ``R`` at its pole along the
+inward normal, and the same beam into a half-space. The exitance per unit area at chord distance ``d`` from the entry
+point (on the sphere the area within chord ``d`` is ``pi d^2``, as on the plane) gives ``C_MC(d) = M_sphere(d) /
+M_plane(d)``. The walk is independent of the renderer and of ``jaxsss.mc`` (whose layered geometry has no sphere).
+
+Rows: one per medium; ``error`` is the largest ``|C_Kelvin / C_MC - 1|`` over the chord bins with at least 100
+photons in both tallies; extra keys hold ``d``, ``C_MC`` with its standard error (from 8 batches), and ``C_Kelvin``.
+``seconds``: the two walks (NumPy; no compilation). ``--quick``: 4e4 photons per walk (full: 4e5).
+"""
+
+from __future__ import annotations
+
+import sys
+import time
+
+import numpy as np
+
+from benchmarks._harness import make_row, parse_args, write_results
+
+NAME = "curvature_transport"
+RADIUS = 20.0
+"""mm: the reference spheres' radius (tests/export/references)."""
+MEDIA = {"skin1 R": (0.032, 0.74), "potato R": (0.0024, 0.68), "ketchup R": (0.061, 0.18),
+         "chicken1 R": (0.015, 0.15)}
+"""``(sigma_a, sigma_s')`` per mm, Jensen et al. 2001 (red channels: l_u 1.3, 1.5, 4.2 and 6.1 mm)."""
+EDGES = np.array([0.5, 1.0, 2.0, 3.0, 5.0, 7.5, 10.0, 14.0, 18.0, 22.0, 26.0, 30.0, 34.0, 38.0, 40.0])
+PHOTONS, QUICK_PHOTONS = 400_000, 40_000
+BATCHES = 8
+METRIC = "max |C_Kelvin / C_MC - 1| over chord bins (pencil beam, normal incidence)"
+
+
+def pencil_beam_exitance(geometry: str, sigma_a: float, sigma_s: float, n: int, seed: int,
+                         radius: float = RADIUS, edges: np.ndarray = EDGES):
+    """``(exitance (B,) per unit area per photon, photons (B,))`` at chord distances ``edges`` from the entry point of
+    a normal pencil beam into ``geometry`` ("sphere" of ``radius``, or "plane": the half-space ``z < 0``)."""
+    rng = np.random.default_rng(seed)
+    sigma_t = sigma_a + sigma_s
+    albedo = sigma_s / sigma_t
+    entry = np.array([0.0, 0.0, radius if geometry == "sphere" else 0.0])
+    pos = np.tile(entry, (n, 1))
+    d = np.tile([0.0, 0.0, -1.0], (n, 1))
+    w = np.ones(n)
+    tally, count = np.zeros(len(edges) - 1), np.zeros(len(edges) - 1)
+    while len(w):
+        new = pos + (-np.log(rng.random(len(w))) / sigma_t)[:, None] * d
+        out = (np.einsum("ij,ij->i", new, new) > radius**2) if geometry == "sphere" else new[:, 2] > 0.0
+        if out.any():
+            p, v = pos[out], d[out]
+            if geometry == "sphere":  # where the step leaves the sphere
+                b = np.einsum("ij,ij->i", p, v)
+                t = -b + np.sqrt(np.maximum(b * b - (np.einsum("ij,ij->i", p, p) - radius**2), 0.0))
+            else:
+                t = -p[:, 2] / v[:, 2]
+            chord = np.linalg.norm(p + t[:, None] * v - entry, axis=1)
+            tally += np.histogram(chord, edges, weights=w[out])[0]
+            count += np.histogram(chord, edges)[0]
+        keep = ~out
+        pos, w = new[keep], w[keep] * albedo
+        # Isotropic scattering.
+        u = rng.random((len(w), 2))
+        cz, phi = 1.0 - 2.0 * u[:, 0], 2.0 * np.pi * u[:, 1]
+        sz = np.sqrt(1.0 - cz * cz)
+        d = np.stack([sz * np.cos(phi), sz * np.sin(phi), cz], axis=1)
+        # Roulette: survive with probability 0.1 below a weight of 1e-3 (unbiased).
+        low = np.flatnonzero(w < 1e-3)
+        survive = rng.random(len(low)) < 0.1
+        w[low[survive]] /= 0.1
+        alive = np.ones(len(w), dtype=bool)
+        alive[low[~survive]] = False
+        pos, d, w = pos[alive], d[alive], w[alive]
+    return tally / n / (np.pi * (edges[1:] ** 2 - edges[:-1] ** 2)), count
+
+
+def measured_ratio(sigma_a: float, sigma_s: float, photons: int, seed: int = 0):
+    """``(C_MC, stderr, min photons per bin)`` from :data:`BATCHES` independent batches of each walk."""
+    runs = []
+    counts = np.zeros((2, len(EDGES) - 1))
+    for b in range(BATCHES):
+        sphere, cs = pencil_beam_exitance("sphere", sigma_a, sigma_s, photons // BATCHES, seed + 2 * b)
+        plane, cp = pencil_beam_exitance("plane", sigma_a, sigma_s, photons // BATCHES, seed + 2 * b + 1)
+        runs.append((sphere, plane))
+        counts += np.stack([cs, cp])
+    sphere, plane = (np.array(x) for x in zip(*runs))
+    ratio = sphere.mean(0) / np.maximum(plane.mean(0), 1e-300)
+    # Delta method over the batch means.
+    rel = np.hypot(sphere.std(0, ddof=1) / np.maximum(sphere.mean(0), 1e-300),
+                   plane.std(0, ddof=1) / np.maximum(plane.mean(0), 1e-300)) / np.sqrt(BATCHES)
+    return ratio, ratio * rel, counts.min(axis=0)
+
+
+def main(argv=None) -> int:
+    args = parse_args(argv, __doc__.splitlines()[0])
+    from jaxsss.render.curvature import curvature_ratio
+
+    photons = QUICK_PHOTONS if args.quick else PHOTONS
+    mid = 0.5 * (EDGES[1:] + EDGES[:-1])
+    rows = []
+    for name, (sa, ss) in MEDIA.items():
+        t0 = time.perf_counter()
+        c_mc, se, n_min = measured_ratio(sa, ss, photons)
+        seconds = time.perf_counter() - t0
+        c_kelvin = np.asarray(curvature_ratio(mid, 1.0 / RADIUS, sa, ss, 1.0, 1.0))
+        ok = n_min >= 100
+        err = float(np.max(np.abs(c_kelvin[ok] / c_mc[ok] - 1.0))) if ok.any() else None
+        rows.append(make_row(NAME, name, f"{photons} photons", err, METRIC, seconds, None, chord_mm=mid.tolist(),
+                             c_mc=c_mc.tolist(), c_mc_stderr=se.tolist(), c_kelvin=c_kelvin.tolist(),
+                             photons_min=n_min.tolist(), l_u_mm=1.0 / (sa + ss)))
+        print(f"{name:<11} l_u {1 / (sa + ss):4.2f} mm ({seconds:.0f} s)\n  d (mm)  " + " ".join(f"{x:6.1f}" for x in mid)
+              + "\n  C_MC    " + " ".join(f"{x:6.2f}" for x in c_mc)
+              + "\n  +-      " + " ".join(f"{x:6.2f}" for x in se)
+              + "\n  Kelvin  " + " ".join(f"{x:6.2f}" for x in c_kelvin), flush=True)
+    write_results(NAME, rows, args.out, quick=args.quick, connect=False,
+                  notes=[f"sphere radius {RADIUS} mm, eta 1, g 0, normal pencil beam; {BATCHES} batches"],
+                  title="curvature ratio: Kelvin-image dipole against a transport walk")
+    _plot_ratios(rows, args.out, args.tag)
+    return 0
+
+
+def _plot_ratios(rows, out, tag: str = "") -> None:
+    """``C_MC`` (points with 2 standard errors) and ``C_Kelvin`` (lines) against the chord, one colour per medium."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    from pathlib import Path
+
+    import matplotlib.pyplot as plt
+
+    fig, ax = plt.subplots(figsize=(7.0, 4.5), layout="constrained")
+    for k, r in enumerate(rows):
+        d = np.asarray(r["chord_mm"])
+        ax.errorbar(d, r["c_mc"], yerr=2 * np.asarray(r["c_mc_stderr"]), fmt="o", ms=4, color=f"C{k}", capsize=2,
+                    label=f"{r['method']} (l_u {r['l_u_mm']:.1f} mm): transport")
+        ax.plot(d, r["c_kelvin"], "-", color=f"C{k}", label=f"{r['method']}: Kelvin-image dipole")
+    ax.set(yscale="log", xlabel=f"chord distance from the entry point, mm (sphere radius {RADIUS:g} mm)",
+           ylabel="exitance on the sphere / on the plane")
+    ax.grid(True, which="both", alpha=0.3)
+    ax.legend(fontsize=7, ncol=2)
+    fig.savefig(Path(out) / f"{NAME}{tag}_ratios.png", dpi=110)
+    plt.close(fig)
+
+
+if __name__ == "__main__":
+    sys.exit(main(sys.argv[1:]))
