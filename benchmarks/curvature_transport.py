@@ -1,16 +1,22 @@
 """The curvature ratio against transport: a pencil beam into an index-matched sphere and into a half-space.
 
 The renderer multiplies each (shaded point, sample) pair's half-space profile by the sphere-to-plane ratio of the
-diffusion dipole with a Kelvin image (:func:`jaxsss.render.curvature.curvature_ratio`). Here the ratio is measured
-by transport itself: an analogue Monte Carlo walk (isotropic scattering, ``g = 0``, ``eta = 1``, absorption by
-weight, roulette below a weight of 1e-3) of a pencil beam entering a sphere of radius ``R`` at its pole along the
-inward normal, and the same beam into a half-space. The exitance per unit area at chord distance ``d`` from the entry
-point (on the sphere the area within chord ``d`` is ``pi d^2``, as on the plane) gives ``C_MC(d) = M_sphere(d) /
-M_plane(d)``. The walk is independent of the renderer and of ``jaxsss.mc`` (whose layered geometry has no sphere).
+diffusion dipole with a Kelvin image (:func:`jaxsss.render.curvature.curvature_ratio`, its source at depth ``mu_i
+l_u`` for light incident at cosine ``mu_i``), and a light column's flux by the chance of an interaction along the
+chord its refracted ray cuts, ``1 - exp(-sigma_t t)`` (:mod:`jaxsss.render.passage`). Here the same ratio is
+measured by transport itself: an analogue Monte Carlo walk (isotropic scattering, ``g = 0``, ``eta = 1``, absorption
+by weight, roulette below a weight of 1e-3) of a pencil beam entering a sphere of radius ``R`` at its pole at
+incidence cosine ``mu_i``, and the same beam into a half-space. Light that leaves before its first interaction is
+not tallied (the renderer's passage lets it through). The exitance per unit area at chord distance ``d`` from the
+entry point, azimuth-averaged (on the sphere the area within chord ``d`` is ``pi d^2``, as on the plane), gives
+``C_MC(d) = M_sphere(d) / M_plane(d)``; the renderer's counterpart is ``C_model(d) = (1 - exp(-sigma_t 2 R mu_i))
+C_Kelvin(d; depth mu_i)``. The renderer also shifts an oblique profile's centre forward, by at most its truncated
+mean travel (a few mm, :func:`jaxsss.render.passage.truncated_travel`); that is left out here, so compare beyond it.
+The walk is independent of the renderer and of ``jaxsss.mc`` (whose layered geometry has no sphere).
 
-Rows: one per medium; ``error`` is the largest ``|C_Kelvin / C_MC - 1|`` over the chord bins with at least 100
-photons in both tallies; extra keys hold ``d``, ``C_MC`` with its standard error (from 8 batches), and ``C_Kelvin``.
-``seconds``: the two walks (NumPy; no compilation). ``--quick``: 4e4 photons per walk (full: 4e5).
+Rows: one per medium and incidence; ``error`` is the largest ``|C_model / C_MC - 1|`` over the chord bins with at
+least 100 photons in both tallies; extra keys hold ``d``, ``C_MC`` with its standard error (from 8 batches), and
+``C_model``. ``seconds``: the two walks (NumPy; no compilation). ``--quick``: 4e4 photons per walk (full: 4e5).
 """
 
 from __future__ import annotations
@@ -31,25 +37,29 @@ MEDIA = {"skin1 R": (0.032, 0.74), "potato R": (0.0024, 0.68), "ketchup R": (0.0
 EDGES = np.array([0.5, 1.0, 2.0, 3.0, 5.0, 7.5, 10.0, 14.0, 18.0, 22.0, 26.0, 30.0, 34.0, 38.0, 40.0])
 PHOTONS, QUICK_PHOTONS = 400_000, 40_000
 BATCHES = 8
-METRIC = "max |C_Kelvin / C_MC - 1| over chord bins (pencil beam, normal incidence)"
+MUS = (1.0, 0.3, 0.1)
+"""Incidence cosines: normal, and two grazing ones (the light near a sphere's terminator)."""
+METRIC = "max |C_model / C_MC - 1| over chord bins (pencil beam)"
 
 
 def pencil_beam_exitance(geometry: str, sigma_a: float, sigma_s: float, n: int, seed: int,
-                         radius: float = RADIUS, edges: np.ndarray = EDGES):
+                         radius: float = RADIUS, edges: np.ndarray = EDGES, mu_i: float = 1.0):
     """``(exitance (B,) per unit area per photon, photons (B,))`` at chord distances ``edges`` from the entry point of
-    a normal pencil beam into ``geometry`` ("sphere" of ``radius``, or "plane": the half-space ``z < 0``)."""
+    a pencil beam at incidence cosine ``mu_i`` into ``geometry`` ("sphere" of ``radius``, or "plane": the half-space
+    ``z < 0``), the light that leaves before its first interaction left out."""
     rng = np.random.default_rng(seed)
     sigma_t = sigma_a + sigma_s
     albedo = sigma_s / sigma_t
     entry = np.array([0.0, 0.0, radius if geometry == "sphere" else 0.0])
     pos = np.tile(entry, (n, 1))
-    d = np.tile([0.0, 0.0, -1.0], (n, 1))
+    d = np.tile([np.sqrt(1.0 - mu_i * mu_i), 0.0, -mu_i], (n, 1))
     w = np.ones(n)
     tally, count = np.zeros(len(edges) - 1), np.zeros(len(edges) - 1)
+    collided = False
     while len(w):
         new = pos + (-np.log(rng.random(len(w))) / sigma_t)[:, None] * d
         out = (np.einsum("ij,ij->i", new, new) > radius**2) if geometry == "sphere" else new[:, 2] > 0.0
-        if out.any():
+        if out.any() and collided:
             p, v = pos[out], d[out]
             if geometry == "sphere":  # where the step leaves the sphere
                 b = np.einsum("ij,ij->i", p, v)
@@ -59,6 +69,7 @@ def pencil_beam_exitance(geometry: str, sigma_a: float, sigma_s: float, n: int, 
             chord = np.linalg.norm(p + t[:, None] * v - entry, axis=1)
             tally += np.histogram(chord, edges, weights=w[out])[0]
             count += np.histogram(chord, edges)[0]
+        collided = True
         keep = ~out
         pos, w = new[keep], w[keep] * albedo
         # Isotropic scattering.
@@ -76,13 +87,13 @@ def pencil_beam_exitance(geometry: str, sigma_a: float, sigma_s: float, n: int, 
     return tally / n / (np.pi * (edges[1:] ** 2 - edges[:-1] ** 2)), count
 
 
-def measured_ratio(sigma_a: float, sigma_s: float, photons: int, seed: int = 0):
+def measured_ratio(sigma_a: float, sigma_s: float, photons: int, seed: int = 0, mu_i: float = 1.0):
     """``(C_MC, stderr, min photons per bin)`` from :data:`BATCHES` independent batches of each walk."""
     runs = []
     counts = np.zeros((2, len(EDGES) - 1))
     for b in range(BATCHES):
-        sphere, cs = pencil_beam_exitance("sphere", sigma_a, sigma_s, photons // BATCHES, seed + 2 * b)
-        plane, cp = pencil_beam_exitance("plane", sigma_a, sigma_s, photons // BATCHES, seed + 2 * b + 1)
+        sphere, cs = pencil_beam_exitance("sphere", sigma_a, sigma_s, photons // BATCHES, seed + 2 * b, mu_i=mu_i)
+        plane, cp = pencil_beam_exitance("plane", sigma_a, sigma_s, photons // BATCHES, seed + 2 * b + 1, mu_i=mu_i)
         runs.append((sphere, plane))
         counts += np.stack([cs, cp])
     sphere, plane = (np.array(x) for x in zip(*runs))
@@ -101,28 +112,31 @@ def main(argv=None) -> int:
     mid = 0.5 * (EDGES[1:] + EDGES[:-1])
     rows = []
     for name, (sa, ss) in MEDIA.items():
-        t0 = time.perf_counter()
-        c_mc, se, n_min = measured_ratio(sa, ss, photons)
-        seconds = time.perf_counter() - t0
-        c_kelvin = np.asarray(curvature_ratio(mid, 1.0 / RADIUS, sa, ss, 1.0, 1.0))
-        ok = n_min >= 100
-        err = float(np.max(np.abs(c_kelvin[ok] / c_mc[ok] - 1.0))) if ok.any() else None
-        rows.append(make_row(NAME, name, f"{photons} photons", err, METRIC, seconds, None, chord_mm=mid.tolist(),
-                             c_mc=c_mc.tolist(), c_mc_stderr=se.tolist(), c_kelvin=c_kelvin.tolist(),
-                             photons_min=n_min.tolist(), l_u_mm=1.0 / (sa + ss)))
-        print(f"{name:<11} l_u {1 / (sa + ss):4.2f} mm ({seconds:.0f} s)\n  d (mm)  " + " ".join(f"{x:6.1f}" for x in mid)
-              + "\n  C_MC    " + " ".join(f"{x:6.2f}" for x in c_mc)
-              + "\n  +-      " + " ".join(f"{x:6.2f}" for x in se)
-              + "\n  Kelvin  " + " ".join(f"{x:6.2f}" for x in c_kelvin), flush=True)
+        for mu in MUS:
+            t0 = time.perf_counter()
+            c_mc, se, n_min = measured_ratio(sa, ss, photons, mu_i=mu)
+            seconds = time.perf_counter() - t0
+            passage = 1.0 - np.exp(-(sa + ss) * 2.0 * RADIUS * mu)
+            c_model = passage * np.asarray(curvature_ratio(mid, 1.0 / RADIUS, sa, ss, 1.0, mu))
+            ok = n_min >= 100
+            err = float(np.max(np.abs(c_model[ok] / c_mc[ok] - 1.0))) if ok.any() else None
+            rows.append(make_row(NAME, name, f"mu_i {mu:g}", err, METRIC, seconds, None, mu_i=mu, chord_mm=mid.tolist(),
+                                 c_mc=c_mc.tolist(), c_mc_stderr=se.tolist(), c_model=c_model.tolist(),
+                                 photons_min=n_min.tolist(), l_u_mm=1.0 / (sa + ss), photons=photons))
+            print(f"{name:<11} l_u {1 / (sa + ss):4.2f} mm, mu_i {mu:g} ({seconds:.0f} s)\n  d (mm)  "
+                  + " ".join(f"{x:6.1f}" for x in mid) + "\n  C_MC    " + " ".join(f"{x:6.2f}" for x in c_mc)
+                  + "\n  +-      " + " ".join(f"{x:6.2f}" for x in se)
+                  + "\n  model   " + " ".join(f"{x:6.2f}" for x in c_model), flush=True)
     write_results(NAME, rows, args.out, quick=args.quick, connect=False,
-                  notes=[f"sphere radius {RADIUS} mm, eta 1, g 0, normal pencil beam; {BATCHES} batches"],
-                  title="curvature ratio: Kelvin-image dipole against a transport walk")
+                  notes=[f"sphere radius {RADIUS} mm, eta 1, g 0, pencil beams at mu_i {MUS}; {BATCHES} batches"],
+                  title="curvature ratio x passage: the renderer against a transport walk")
     _plot_ratios(rows, args.out, args.tag)
     return 0
 
 
 def _plot_ratios(rows, out, tag: str = "") -> None:
-    """``C_MC`` (points with 2 standard errors) and ``C_Kelvin`` (lines) against the chord, one colour per medium."""
+    """``C_MC`` (points with 2 standard errors) and ``C_model`` (lines) against the chord, one panel per incidence
+    cosine and one colour per medium."""
     import matplotlib
 
     matplotlib.use("Agg")
@@ -130,16 +144,18 @@ def _plot_ratios(rows, out, tag: str = "") -> None:
 
     import matplotlib.pyplot as plt
 
-    fig, ax = plt.subplots(figsize=(7.0, 4.5), layout="constrained")
-    for k, r in enumerate(rows):
-        d = np.asarray(r["chord_mm"])
-        ax.errorbar(d, r["c_mc"], yerr=2 * np.asarray(r["c_mc_stderr"]), fmt="o", ms=4, color=f"C{k}", capsize=2,
-                    label=f"{r['method']} (l_u {r['l_u_mm']:.1f} mm): transport")
-        ax.plot(d, r["c_kelvin"], "-", color=f"C{k}", label=f"{r['method']}: Kelvin-image dipole")
-    ax.set(yscale="log", xlabel=f"chord distance from the entry point, mm (sphere radius {RADIUS:g} mm)",
-           ylabel="exitance on the sphere / on the plane")
-    ax.grid(True, which="both", alpha=0.3)
-    ax.legend(fontsize=7, ncol=2)
+    mus = list(dict.fromkeys(r["mu_i"] for r in rows))
+    fig, axes = plt.subplots(1, len(mus), figsize=(5.0 * len(mus), 4.5), layout="constrained", sharey=True)
+    for ax, mu in zip(np.atleast_1d(axes), mus):
+        for k, r in enumerate(x for x in rows if x["mu_i"] == mu):
+            d = np.asarray(r["chord_mm"])
+            ax.errorbar(d, r["c_mc"], yerr=2 * np.asarray(r["c_mc_stderr"]), fmt="o", ms=4, color=f"C{k}",
+                        capsize=2, label=f"{r['method']} (l_u {r['l_u_mm']:.1f} mm): transport")
+            ax.plot(d, r["c_model"], "-", color=f"C{k}", label=f"{r['method']}: renderer")
+        ax.set(yscale="log", xlabel="chord distance from the entry point, mm", title=f"pencil beam, mu_i = {mu:g}")
+        ax.grid(True, which="both", alpha=0.3)
+    np.atleast_1d(axes)[0].set_ylabel(f"exitance on the sphere (radius {RADIUS:g} mm) / on the plane")
+    np.atleast_1d(axes)[0].legend(fontsize=6, ncol=2)
     fig.savefig(Path(out) / f"{NAME}{tag}_ratios.png", dpi=110)
     plt.close(fig)
 
