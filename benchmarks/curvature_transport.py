@@ -16,7 +16,9 @@ The walk is independent of the renderer and of ``jaxsss.mc`` (whose layered geom
 
 Rows: one per medium and incidence; ``error`` is the largest ``|C_model / C_MC - 1|`` over the chord bins with at
 least 100 photons in both tallies; extra keys hold ``d``, ``C_MC`` with its standard error (from 8 batches), and
-``C_model``. ``seconds``: the two walks (NumPy; no compilation). ``--quick``: 4e4 photons per walk (full: 4e5).
+``C_model``, and ``half_space_cut``: :func:`truncated_ratio`, the half-space's own exitance when its beam's first
+flight is cut at the chord (what a chord does to a grazing beam, without the curvature). ``seconds``: the walks
+(NumPy; no compilation). ``--quick``: 4e4 photons per walk (full: 4e5).
 """
 
 from __future__ import annotations
@@ -43,10 +45,12 @@ METRIC = "max |C_model / C_MC - 1| over chord bins (pencil beam)"
 
 
 def pencil_beam_exitance(geometry: str, sigma_a: float, sigma_s: float, n: int, seed: int,
-                         radius: float = RADIUS, edges: np.ndarray = EDGES, mu_i: float = 1.0):
+                         radius: float = RADIUS, edges: np.ndarray = EDGES, mu_i: float = 1.0,
+                         first_flight_max: float = np.inf):
     """``(exitance (B,) per unit area per photon, photons (B,))`` at chord distances ``edges`` from the entry point of
     a pencil beam at incidence cosine ``mu_i`` into ``geometry`` ("sphere" of ``radius``, or "plane": the half-space
-    ``z < 0``), the light that leaves before its first interaction left out."""
+    ``z < 0``), the light that leaves before its first interaction left out. ``first_flight_max`` (mm): photons whose
+    first flight is longer leave (a beam truncated as a chord of that length truncates it)."""
     rng = np.random.default_rng(seed)
     sigma_t = sigma_a + sigma_s
     albedo = sigma_s / sigma_t
@@ -57,8 +61,11 @@ def pencil_beam_exitance(geometry: str, sigma_a: float, sigma_s: float, n: int, 
     tally, count = np.zeros(len(edges) - 1), np.zeros(len(edges) - 1)
     collided = False
     while len(w):
-        new = pos + (-np.log(rng.random(len(w))) / sigma_t)[:, None] * d
+        step = -np.log(rng.random(len(w))) / sigma_t
+        new = pos + step[:, None] * d
         out = (np.einsum("ij,ij->i", new, new) > radius**2) if geometry == "sphere" else new[:, 2] > 0.0
+        if not collided:
+            out |= step > first_flight_max
         if out.any() and collided:
             p, v = pos[out], d[out]
             if geometry == "sphere":  # where the step leaves the sphere
@@ -104,6 +111,15 @@ def measured_ratio(sigma_a: float, sigma_s: float, photons: int, seed: int = 0, 
     return ratio, ratio * rel, counts.min(axis=0)
 
 
+def truncated_ratio(sigma_a: float, sigma_s: float, photons: int, mu_i: float, chord: float, seed: int = 0):
+    """``T(d)``: the exitance of a half-space's beam whose first flight is cut at ``chord`` over the uncut one's (two
+    walks from the same seed: the same first flights, the cut ones leave). On the sphere a chord cuts the beam the
+    same way, so ``C_MC ~ T x`` the curvature gain."""
+    cut, _ = pencil_beam_exitance("plane", sigma_a, sigma_s, photons, seed, mu_i=mu_i, first_flight_max=chord)
+    full, _ = pencil_beam_exitance("plane", sigma_a, sigma_s, photons, seed, mu_i=mu_i)
+    return cut / np.maximum(full, 1e-300)
+
+
 def main(argv=None) -> int:
     args = parse_args(argv, __doc__.splitlines()[0])
     from jaxsss.render.curvature import curvature_ratio
@@ -118,15 +134,18 @@ def main(argv=None) -> int:
             seconds = time.perf_counter() - t0
             passage = 1.0 - np.exp(-(sa + ss) * 2.0 * RADIUS * mu)
             c_model = passage * np.asarray(curvature_ratio(mid, 1.0 / RADIUS, sa, ss, 1.0, mu))
+            cut = truncated_ratio(sa, ss, photons // 2, mu, 2.0 * RADIUS * mu) if mu < 1.0 else np.ones_like(mid)
             ok = n_min >= 100
             err = float(np.max(np.abs(c_model[ok] / c_mc[ok] - 1.0))) if ok.any() else None
-            rows.append(make_row(NAME, name, f"mu_i {mu:g}", err, METRIC, seconds, None, mu_i=mu, chord_mm=mid.tolist(),
-                                 c_mc=c_mc.tolist(), c_mc_stderr=se.tolist(), c_model=c_model.tolist(),
-                                 photons_min=n_min.tolist(), l_u_mm=1.0 / (sa + ss), photons=photons))
+            rows.append(make_row(NAME, name, f"mu_i {mu:g}", err, METRIC, seconds, None, mu_i=mu,
+                                 chord_mm=mid.tolist(), c_mc=c_mc.tolist(), c_mc_stderr=se.tolist(),
+                                 c_model=c_model.tolist(), half_space_cut=cut.tolist(), photons_min=n_min.tolist(),
+                                 l_u_mm=1.0 / (sa + ss), photons=photons))
             print(f"{name:<11} l_u {1 / (sa + ss):4.2f} mm, mu_i {mu:g} ({seconds:.0f} s)\n  d (mm)  "
                   + " ".join(f"{x:6.1f}" for x in mid) + "\n  C_MC    " + " ".join(f"{x:6.2f}" for x in c_mc)
                   + "\n  +-      " + " ".join(f"{x:6.2f}" for x in se)
-                  + "\n  model   " + " ".join(f"{x:6.2f}" for x in c_model), flush=True)
+                  + "\n  model   " + " ".join(f"{x:6.2f}" for x in c_model)
+                  + "\n  cut     " + " ".join(f"{x:6.2f}" for x in cut), flush=True)
     write_results(NAME, rows, args.out, quick=args.quick, connect=False,
                   notes=[f"sphere radius {RADIUS} mm, eta 1, g 0, pencil beams at mu_i {MUS}; {BATCHES} batches"],
                   title="curvature ratio x passage: the renderer against a transport walk")
@@ -135,8 +154,8 @@ def main(argv=None) -> int:
 
 
 def _plot_ratios(rows, out, tag: str = "") -> None:
-    """``C_MC`` (points with 2 standard errors) and ``C_model`` (lines) against the chord, one panel per incidence
-    cosine and one colour per medium."""
+    """``C_MC`` (points with 2 standard errors), ``C_model`` (lines) and the half-space with its beam cut at the
+    chord (dotted) against the chord distance, one panel per incidence cosine and one colour per medium."""
     import matplotlib
 
     matplotlib.use("Agg")
@@ -152,6 +171,9 @@ def _plot_ratios(rows, out, tag: str = "") -> None:
             ax.errorbar(d, r["c_mc"], yerr=2 * np.asarray(r["c_mc_stderr"]), fmt="o", ms=4, color=f"C{k}",
                         capsize=2, label=f"{r['method']} (l_u {r['l_u_mm']:.1f} mm): transport")
             ax.plot(d, r["c_model"], "-", color=f"C{k}", label=f"{r['method']}: renderer")
+            if mu < 1.0:
+                ax.plot(d, r["half_space_cut"], ":", color=f"C{k}",
+                        label=f"{r['method']}: half-space, beam cut at the chord")
         ax.set(yscale="log", xlabel="chord distance from the entry point, mm", title=f"pencil beam, mu_i = {mu:g}")
         ax.grid(True, which="both", alpha=0.3)
     np.atleast_1d(axes)[0].set_ylabel(f"exitance on the sphere (radius {RADIUS:g} mm) / on the plane")

@@ -76,6 +76,12 @@ def test_curvature_transport_walk_reflects_chandrasekhars_albedo_and_a_sphere_mo
     far = (np.asarray(ct.EDGES[:-1]) >= 14.0) & (n_min >= 100)
     assert far.any() and np.all(ratio[far] - 3 * se[far] > 1.0), (ratio, se)
     assert "curvature_transport" in BENCHMARKS
+    # A grazing beam cut at a 4 mm chord: as before near the entry, and beyond the chord less than the uniform
+    # fraction that interacts (1 - exp(-sigma_t t) = 0.62 for ketchup's red); uncut, the same walk exactly.
+    mid = 0.5 * (ct.EDGES[1:] + ct.EDGES[:-1])
+    cut = ct.truncated_ratio(0.061, 0.18, 20_000, 0.1, 4.0)
+    assert np.all(np.abs(cut[mid < 2.0] - 1.0) < 0.1) and np.all(cut[(mid > 6.0) & (mid < 20.0)] < 0.4), cut
+    np.testing.assert_array_equal(ct.truncated_ratio(0.061, 0.18, 2_000, 0.1, np.inf), 1.0)
 
 
 def test_render_eps_quick(tmp_path):
