@@ -52,7 +52,7 @@ SCENES = ("skin1_sphere", "g09_sphere", "skin1_sphere_env", "marble_teapot", "sk
 FIT_VIEWS = ("skin1_sphere_zoom",)
 """References made with ``--references`` for fits only (notebooks/render_and_fit.ipynb), not benchmarked: the skin1
 sphere through a narrow lens at its terminator, a second view in which the diffusion blur spans many pixels."""
-REFERENCE_SPP = {"skin1_sphere": 8192, "g09_sphere": 8192, "skin1_sphere_env": 65536, "marble_teapot": 16384,
+REFERENCE_SPP = {"skin1_sphere": 8192, "g09_sphere": 24576, "skin1_sphere_env": 65536, "marble_teapot": 16384,
                  "skin1_sphere_env13": 32768, "ketchup_sphere": 8192, "skin1_sphere_zoom": 32768}
 REFERENCE_SEEDS = (0, 1)  # two halves, averaged; their difference measures the reference's noise
 LLVM_CANDIDATES = ("/usr/lib/x86_64-linux-gnu/libLLVM-19.so", "/usr/lib/x86_64-linux-gnu/libLLVM.so.19.1")

@@ -89,7 +89,8 @@ the Jensen et al. 2001 materials (apple, marble, potato, skimmilk, chicken1; doc
 spheres, re-rendered with the late roulette"): 2.2% in ``[0.1, 0.3)`` (largest 5.5%), 4.3% in the terminator band
 ``[-0.1, 0.1)`` (8.8%), 14% in ``[-0.3, -0.1)`` (28%) and 41% below (-66% to +49%: the far dark side, where light
 that entered at grazing angles arrives and the renderer is least accurate). From 0.3 up it is 1.5%, within the
-level."""
+level. (Measured with the 8192-spp g = 0.9 reference; its 24576-spp successor gives 4.1% and 2.1% for the two
+bands nearest the terminator, the same within rounding.)"""
 
 
 def light_key(light) -> tuple:
