@@ -537,6 +537,9 @@ class WhiteKernel(eqx.Module):
     # The curvature table (None: flat): (K (G - 1) (N_KAPPA - 1) C, 4) bilinear coefficients of log(R C) per cell,
     # sigma_t' (C,) and each node's source depth (K, C) (:func:`white_kernel`).
     curvature: tuple | None = None
+    # The cut-beam passage (None: off): the loss table (K, T, X, C) of jaxsss.render.passage.passage_loss_table and
+    # sigma_t' (C,); the flux then carries two more rows, the flux of light columns with a finite chord W_k and W_k t.
+    passage: tuple | None = None
 
     def profile(self, r, kappa=None):
         """``R_k(r)`` in 1/mm^2 at distances ``r`` (mm): ``(P,)`` gives ``(P, K, C)``; ``(P, K, C)`` is evaluated
@@ -580,17 +583,45 @@ class WhiteKernel(eqx.Module):
         ``s_k = shift_length V_k / F_k`` (mm), once per entity instead of once per pair; unchanged without one."""
         if self.shift_length is None:
             return flux
-        f, v = flux[:, 0], flux[:, 1:]  # (E, K, C), (E, 3, K, C)
-        return jnp.concatenate([f[:, None], self.shift_length * v / jnp.where(f > 0, f, 1.0)[:, None]], axis=1)
+        f, v = flux[:, 0], flux[:, 1:4]  # (E, K, C), (E, 3, K, C)
+        safe = jnp.where(f > 0, f, 1.0)
+        out = [f[:, None], self.shift_length * v / safe[:, None]]
+        if self.passage is not None:
+            w, wt = flux[:, 4], flux[:, 5]
+            # The share of the flux that runs along a finite chord, and its flux-weighted mean chord (mm).
+            out += [(w / safe)[:, None], (wt / jnp.where(w > 0, w, 1.0))[:, None]]
+        return jnp.concatenate(out, axis=1)
 
     def _distance(self, delta, sources):
         """``(r, F)``: the distance from each node's (shifted) point of entry, ``(P,)`` or ``(P, K, C)`` mm, and the
         incident flux ``(P, K, C)``, from the pairs' :meth:`sources`."""
         if self.shift_length is None:
             return jnp.sqrt(jnp.maximum(jnp.sum(delta * delta, axis=-1), 1e-300)), sources
-        d = delta[:, :, None, None] - sources[:, 1:]
+        d = delta[:, :, None, None] - sources[:, 1:4]
         # Oblique incidence: the profile about the shifted point of entry.
-        return jnp.sqrt(jnp.maximum(jnp.sum(d * d, axis=1), 1e-300)), sources[:, 0]
+        r = jnp.sqrt(jnp.maximum(jnp.sum(d * d, axis=1), 1e-300))
+        if self.passage is None:
+            return r, sources[:, 0]
+        return r, sources[:, 0] * self._kept(delta, sources)
+
+    def _kept(self, delta, sources):
+        """``(P, K, C)``: the share of each pair's light that a cut beam keeps, ``1 - W/F loss(sigma_t' t, d / t)``
+        at the distance ``d`` from the (unshifted) point of entry and the entity's mean chord ``t``
+        (:func:`jaxsss.render.passage.passage_loss`)."""
+        from jaxsss.render.passage import passage_loss
+
+        table, sigma_t_prime, floor = self.passage
+        share, chord = sources[:, 4], sources[:, 5]
+        d = jnp.sqrt(jnp.maximum(jnp.sum(delta * delta, axis=-1), 1e-300))[:, None, None]
+        # The step at d = t is resolved no finer than the samples: the chord is floored at ``floor`` for x.
+        safe = jnp.maximum(chord, floor)
+        # Ahead of the entry along the light's travel (the shift's direction; 1/2 where there is none).
+        shift = sources[:, 1:4]
+        along = jnp.einsum("pj,pjkc->pkc", delta, shift)
+        norm = jnp.sqrt(jnp.maximum(jnp.sum(shift * shift, axis=1), 1e-300)) * d
+        ahead = 0.5 * (1.0 + jnp.where(norm > 1e-12, along / jnp.where(norm > 1e-12, norm, 1.0), 0.0))
+        # Cut beam: the light lost at d / t chords from the entry (transport table).
+        return 1.0 - share * passage_loss(table, sigma_t_prime * chord, d / safe, ahead)
 
     def _curved(self, r, delta, normals):
         """``R_k(r)`` ``(P, K, C)``, times the curvature ratio of :mod:`jaxsss.render.curvature` when the kernel has
@@ -683,18 +714,30 @@ def _log(x):
 
 
 def white_kernel(medium: Medium, sources: WhiteSources, mus: tuple = (1.0,) + KERNEL_MUS,
-                 shift: bool = False, curvature: bool = False) -> WhiteKernel:
+                 shift: bool = False, curvature: bool = False, passage: float | None = None) -> WhiteKernel:
     """Tabulate the profiles at incidence cosines ``mus`` (1, then the oblique nodes of ``sources``, from
     :func:`white_tables`) for ``medium`` on the grid (differentiable in ``sigma_a`` and ``sigma_s'``): normal incidence
     from the white Monte Carlo family, oblique nodes from ``sources`` (module docstring). ``shift``: shift the
     oblique profiles forward (:data:`SHIFT_RATIO`; the samples' flux then carries the travel directions). Jitted;
     the family is loaded here, outside the trace (its first load runs JAX code on concrete values). ``curvature``:
     the kernel carries the medium for the curvature ratio (:mod:`jaxsss.render.curvature`), applied to the pairs whose
-    normals the sums pass, with each node's source at the depth of its refracted cosine."""
+    normals the sums pass, with each node's source at the depth of its refracted cosine. ``passage`` (mm; needs
+    ``shift``): the kernel carries the cut-beam loss table (:mod:`jaxsss.render.passage`), resolved no finer than
+    this distance (the samples' spacing), and the flux two more rows (:meth:`WhiteKernel.sources`); None: off."""
     from jaxsss.mc.white_family import load_white_family
+    from jaxsss.render.passage import passage_loss_table
 
     load_white_family()
     kernel = _white_kernel(medium, sources, mus, shift)
+    if passage is not None:
+        if not shift:
+            raise ValueError("white_kernel: passage=True needs shift=True (the cut beam's rows follow the travel's)")
+        c = kernel.sigma_s.shape
+        sigma_t_prime = jnp.broadcast_to(medium.sigma_a + medium.sigma_s_prime, c)
+        albedo = jnp.broadcast_to(medium.alpha_prime, c)
+        kernel = eqx.tree_at(lambda k: k.passage, kernel,
+                             (passage_loss_table(albedo, mus), sigma_t_prime, jnp.asarray(passage, sigma_t_prime.dtype)),
+                             is_leaf=lambda x: x is None)
     if not curvature:
         return kernel
     return eqx.tree_at(lambda k: k.curvature, kernel, _curvature_table(kernel, medium, jnp.asarray(mus)),

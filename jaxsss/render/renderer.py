@@ -23,7 +23,7 @@ from jaxsss.medium import Medium
 from jaxsss.render import radiance as rad
 from jaxsss.render.bssrdf import (albedo_correction, exit_model_for, incident_flux, shift_reach, surface_tangents,
                                   white_kernel, white_tables)
-from jaxsss.render.passage import interaction_probability, truncated_travel
+from jaxsss.render.passage import PASSAGE_FLOOR, interaction_probability, truncated_travel
 from jaxsss.render.camera import camera_frame
 from jaxsss.render.methods import Preparation, register_method
 from jaxsss.render.octree import build_octree
@@ -93,15 +93,24 @@ class Prepared(ReflectingPoints):
         if self.bssrdf != "dipole":
             irradiance = self.light_irradiance
             travel = None
+            chord_rows = None
             if self.light_chord is not None:
-                g = 0.0 if medium.g is None else medium.g
-                # Uncollided passage: only the light that interacts before its chord ends enters the profile.
-                irradiance = irradiance * interaction_probability(
-                    self.light_chord, medium.sigma_a + medium.sigma_s_prime / (1.0 - g))
+                sigma_t_prime = medium.sigma_a + medium.sigma_s_prime
                 if self.light_tangent is not None:
                     # The oblique profiles' forward shift, shortened where the chord ends before the half-space's
                     # mean travel (grazing light on a curved or thin part).
-                    travel = truncated_travel(self.light_chord, medium.sigma_a + medium.sigma_s_prime)
+                    travel = truncated_travel(self.light_chord, sigma_t_prime)
+                    # Cut beam: the flux of columns with a finite chord, and times the chord (the kernel's loss).
+                    finite = jnp.isfinite(self.light_chord)[..., None]
+                    t = jnp.where(finite, self.light_chord[..., None], 0.0)
+                    chord_rows = [incident_flux(self.bssrdf_mus, self.areas, self.light_cos,
+                                                jnp.where(finite, irradiance, 0.0) * t**p, None, self.texture)
+                                  for p in (0, 1)]
+                else:
+                    # Uncollided passage: only the light that interacts before its chord ends enters the profile.
+                    g = 0.0 if medium.g is None else medium.g
+                    irradiance = irradiance * interaction_probability(
+                        self.light_chord, medium.sigma_a + medium.sigma_s_prime / (1.0 - g))
             if self.bssrdf_exit in ("chandrasekhar", "anisotropic") and len(self.bssrdf_mus) > 1:
                 # Index-matched: the node mix reflects Chandrasekhar's exact total at every incidence cosine (for
                 # g > 0 the isotropic equivalent's: its curve in mu has the same shape within a few per cent).
@@ -109,8 +118,11 @@ class Prepared(ReflectingPoints):
                 irradiance = irradiance * albedo_correction(self.light_cos, self.bssrdf_mus, albedo)
                 if indirect is not None:
                     indirect = indirect * albedo_correction(None, self.bssrdf_mus, albedo)
-            return incident_flux(self.bssrdf_mus, self.areas, self.light_cos, irradiance, indirect,
+            flux = incident_flux(self.bssrdf_mus, self.areas, self.light_cos, irradiance, indirect,
                                  self.texture, self.light_tangent, travel)
+            if chord_rows is None:
+                return flux
+            return jnp.concatenate([flux] + [row[:, None] for row in chord_rows], axis=1)
         return rad.transmitted_flux(medium, self.areas, self.light_cos, self.light_irradiance, indirect,
                                     self.texture)
 
@@ -123,8 +135,10 @@ class Prepared(ReflectingPoints):
         """The sums' kernel for ``medium``: None (the dipole) or a :class:`~jaxsss.render.bssrdf.WhiteKernel`."""
         if self.bssrdf == "dipole":
             return None
-        return white_kernel(medium, self.bssrdf_tables, self.bssrdf_mus, shift=self.light_tangent is not None,
-                            curvature=self.ent_normal is not None)
+        shift = self.light_tangent is not None
+        return white_kernel(medium, self.bssrdf_tables, self.bssrdf_mus, shift=shift,
+                            curvature=self.ent_normal is not None,
+                            passage=PASSAGE_FLOOR * self.rho0 if shift and self.light_chord is not None else None)
 
     @property
     def normals(self):

@@ -7,7 +7,9 @@ import numpy as np
 import pytest
 
 from jaxsss.render.meshes import builtin_mesh
-from jaxsss.render.passage import entry_chords, interaction_probability, truncated_travel
+from jaxsss.render.passage import (PASSAGE_MUS, PASSAGE_TAU, PASSAGE_X, cut_beam_tallies, entry_chords,
+                                   interaction_probability, load_passage_table, passage_loss, passage_loss_table,
+                                   truncated_travel)
 from jaxsss.render.rays import SceneGeometry
 from tests.gradcheck import assert_grad_matches_fd
 
@@ -124,6 +126,92 @@ def test_truncated_travel_extremes_and_gradient():
         return jnp.sum(truncated_travel(chord, sigma_t_prime) * jnp.array([1.0, 2.0, 3.0, 4.0])[:, None])
 
     assert_grad_matches_fd(g, jnp.array([0.3, 0.77, 1.5]))
+
+
+def test_cut_beam_walk_reflects_chandrasekhars_albedo():
+    """Reference: the cut-beam walk's whole beam (every first flight) puts out Chandrasekhar's exact directional
+    albedo of an isotropic half-space (``bssrdf.directional_albedo``), at two incidences."""
+    from jaxsss.render.bssrdf import directional_albedo
+
+    for albedo, mu in ((0.9, 0.1), (0.7, 1.0)):
+        tally = cut_beam_tallies(albedo, mu, 40_000, seed=3)
+        assert tally.shape == (2, len(PASSAGE_TAU), 160)
+        exact = float(np.asarray(directional_albedo(jnp.array([mu]), jnp.array([albedo]))).ravel()[0])
+        assert abs(tally.sum() - exact) < 0.01 * exact + 0.002, (tally.sum(), exact)
+
+
+def test_loss_table_against_an_independent_walk():
+    """Reference: the cut-beam tallies against the curvature benchmark's own walker
+    (``benchmarks.curvature_transport.pencil_beam_exitance``: ketchup's red, sigma_a 0.061 and sigma_s 0.18 per mm,
+    a beam at cos 0.1 cut at the 20 mm sphere's chord of 4 mm), which keeps 0.99 / 0.24 / 0.20 / 0.18 of the light
+    at 0.75 / 6.25 / 8.75 / 12 mm (2026-11-27); and the shipped table's two half-planes, weighted by the light each
+    puts out, give the same."""
+    from benchmarks import curvature_transport as ct
+    from jaxsss.render.passage import _D_EDGES
+
+    sa, ss, chord = 0.061, 0.18, 4.0
+    edges = np.array([0.5, 1.0, 5.0, 7.5, 10.0, 14.0])
+    cut, _ = ct.pencil_beam_exitance("plane", sa, ss, 60_000, 0, edges=edges, mu_i=0.1, first_flight_max=chord)
+    full, _ = ct.pencil_beam_exitance("plane", sa, ss, 60_000, 0, edges=edges, mu_i=0.1)
+    kept = (cut / full)[[0, 2, 3, 4]]
+    # The package's walk (sigma_t = 1: distances in mean free paths), at albedo 0.75 and tau 0.96 (bins of mm).
+    sigma_t, albedo = sa + ss, ss / (sa + ss)
+    tally = cut_beam_tallies(albedo, 0.1, 200_000, seed=5, tau_edges=(sigma_t * chord,))
+    d = np.sqrt(_D_EDGES[1:] * np.maximum(_D_EDGES[:-1], 1e-3)) / sigma_t  # mm
+    half_full, half_cut = [], []
+    for lo, hi in ((0.5, 1.0), (5.0, 7.5), (7.5, 10.0), (10.0, 14.0)):
+        inside = (d >= lo) & (d < hi)
+        half_full.append(tally[:, :, inside].sum(axis=(1, 2)))
+        half_cut.append(tally[:, 0, inside].sum(axis=1))
+    half_full, half_cut = np.array(half_full), np.array(half_cut)  # (4, 2): behind, ahead
+    np.testing.assert_allclose(half_cut.sum(1) / half_full.sum(1), kept, atol=0.05)
+    # The table's half-planes, weighted by each half's share of the light.
+    table = passage_loss_table(jnp.array([albedo]), (0.1,))
+    x = jnp.asarray(np.array([0.75, 6.25, 8.75, 12.0]) / chord)[:, None, None]
+    halves = np.stack([1.0 - np.asarray(passage_loss(table, jnp.full((4, 1, 1), sigma_t * chord), x, a))[:, 0, 0]
+                       for a in (0.0, 1.0)], axis=1)
+    np.testing.assert_allclose((halves * half_full).sum(1) / half_full.sum(1), kept, atol=0.08)
+
+
+def test_loss_table_shapes_and_bad_nodes():
+    table = passage_loss_table(jnp.array([0.2, 0.75, 0.999]), (1.0, 0.5, 0.1))
+    assert table.shape == (3, len(PASSAGE_TAU), len(PASSAGE_X), 2, 3)
+    out = passage_loss(table, jnp.full((5, 3, 3), 2.0), jnp.linspace(0.0, 4.0, 5)[:, None, None] * jnp.ones((5, 3, 3)),
+                       jnp.full((5, 3, 3), 0.5))
+    assert out.shape == (5, 3, 3)
+    with pytest.raises(ValueError, match="mus"):
+        passage_loss_table(jnp.array([0.5]), (0.25,))
+
+
+def test_white_kernel_refuses_a_passage_without_a_shift():
+    from jaxsss.medium import Medium
+    from jaxsss.render.bssrdf import white_kernel, white_tables
+
+    mus, sources = white_tables(0.0, 1.0, True)
+    with pytest.raises(ValueError, match="shift"):
+        white_kernel(Medium(sigma_a=0.1, sigma_s_prime=1.0, eta=1.0), sources, mus, shift=False, passage=1.0)
+
+
+def test_loss_table_invariants():
+    """A share of light in [0, 1]; little is lost near the entry (x = 0) and nothing from tau = 10; at grazing
+    incidence a shorter chord loses more beyond it; the light ahead of the entry loses more than the light behind."""
+    tab = load_passage_table()["loss"]  # (U, A, T, X, 2)
+    assert np.all((tab >= 0.0) & (tab <= 1.0))
+    assert np.all(tab[:, :, :, 0] < 0.2)
+    assert np.all(tab[:, :, -1] == 0.0)
+    grazing = tab[PASSAGE_MUS.index(0.1)]
+    beyond = grazing[:, :-1, PASSAGE_X.index(1.5)].mean(axis=-1)  # (A, T)
+    assert np.all(np.diff(beyond, axis=1) <= 0.02)
+    assert np.all(grazing[:, :-1, PASSAGE_X.index(1.5), 1] >= grazing[:, :-1, PASSAGE_X.index(1.5), 0] - 0.02)
+
+
+def test_loss_gradients_match_finite_differences():
+    def f(p):
+        table = passage_loss_table(p[:1], (1.0, 0.1))
+        shape = (3, 2, 1)
+        return jnp.sum(passage_loss(table, jnp.full(shape, p[1]), jnp.full(shape, p[2]), jnp.full(shape, p[3])))
+
+    assert_grad_matches_fd(f, jnp.array([0.84, 1.3, 1.17, 0.6]))
 
 
 def test_the_terminator_of_the_path_traced_ketchup_sphere():
