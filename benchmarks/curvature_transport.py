@@ -29,6 +29,7 @@ import time
 import numpy as np
 
 from benchmarks._harness import make_row, parse_args, write_results
+from jaxsss.render.walk import isotropic_directions, roulette
 
 NAME = "curvature_transport"
 RADIUS = 20.0
@@ -79,17 +80,8 @@ def pencil_beam_exitance(geometry: str, sigma_a: float, sigma_s: float, n: int, 
         collided = True
         keep = ~out
         pos, w = new[keep], w[keep] * albedo
-        # Isotropic scattering.
-        u = rng.random((len(w), 2))
-        cz, phi = 1.0 - 2.0 * u[:, 0], 2.0 * np.pi * u[:, 1]
-        sz = np.sqrt(1.0 - cz * cz)
-        d = np.stack([sz * np.cos(phi), sz * np.sin(phi), cz], axis=1)
-        # Roulette: survive with probability 0.1 below a weight of 1e-3 (unbiased).
-        low = np.flatnonzero(w < 1e-3)
-        survive = rng.random(len(low)) < 0.1
-        w[low[survive]] /= 0.1
-        alive = np.ones(len(w), dtype=bool)
-        alive[low[~survive]] = False
+        d = isotropic_directions(rng, len(w))
+        alive = roulette(rng, w)
         pos, d, w = pos[alive], d[alive], w[alive]
     return tally / n / (np.pi * (edges[1:] ** 2 - edges[:-1] ** 2)), count
 

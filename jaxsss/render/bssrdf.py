@@ -67,9 +67,14 @@ from a table made once per image (:func:`white_kernel`, ``curvature=True``). The
 
 Passage (``"white*"``). A half-space takes in all the light that enters it; on a curved or thin part light entering
 at grazing incidence can run through the object and leave without interacting. Pass 1 traces each light column's
-refracted ray to where it leaves the mesh and the incident flux is weighted by the probability of interacting on the
-way, ``1 - exp(-sigma_t t)`` (:mod:`jaxsss.render.passage`; with it the terminator band of the 20 mm skin1 sphere
-under a point light is within 15% of Mitsuba in every channel, docs/path_tracer.md).
+refracted ray to where it leaves the mesh. ``"white"`` weights the incident flux by the probability of interacting
+on the way, ``1 - exp(-sigma_t t)``; ``"white-oblique"`` keeps the whole column and multiplies each pair by the share
+of a cut beam's light kept at its distance from the entry (a transport table: nearly all within the chord, far less
+than ``exp(-sigma_t t)`` beyond; :mod:`jaxsss.render.passage`, "The cut beam").
+
+Exit by distance (exit model ``"distance"``: ``eta = 1``, ``g = 0``). Light that has travelled several mean free
+paths leaves less grazing than the half-space's whole exit ``X``: the sums carry each node's exitance weighted by a
+tabulated amplitude ``c(d)`` too, which leaves by ``X phi(mu_o)`` (:mod:`jaxsss.render.exit_distance`).
 
 Which kernel a scene gets is the scene plan's decision (:func:`choose_bssrdf`): ``white-oblique`` for every ``g <
 FORWARD_G`` and ``eta`` in the family's range, the dipole with its reason otherwise (``g >= FORWARD_G``, ``eta`` or
@@ -146,8 +151,9 @@ scattering's exit direction"). Linear in ``g`` between these nodes and ``g = 0``
 3% of the line between g 0 and g 0.9 (measured after it; taken as nodes all the same)."""
 CURVATURE_WHY = ("the surface's curvature per pair (jaxsss.render.curvature: a convex object lets more light out "
                  "than a half-space; flat surfaces are unchanged); light that crosses the object without interacting "
-                 "(jaxsss.render.passage: each light's refracted ray traced to where it leaves, the flux weighted by "
-                 "1 - exp(-sigma_t chord); grazing light on curved or thin parts)")
+                 "(jaxsss.render.passage: each light's refracted ray traced to where it leaves; the light kept by "
+                 "distance from the entry relative to that chord, a cut-beam transport table, or 1 - exp(-sigma_t "
+                 "chord) for normal incidence only; grazing light on curved or thin parts)")
 """What the plan says of the white kernels' geometry terms: the curvature ratio (always on: 1 on a plane, one ratio
 per pair) and the uncollided passage (always on: 1 where a light's refracted ray never leaves the object)."""
 WHITE_DENSITY = 2.0
@@ -310,7 +316,9 @@ def choose_bssrdf(medium: Medium, request: str = "auto") -> tuple[str, str]:
             check_covered(g, eta, owner=f"bssrdf={request!r}")
         return "dipole", (f"WARNING: g={g:g}, eta={eta:g} is outside the white Monte Carlo family's range (g in [0, "
                           "0.95], eta in [1, 1.6]): the dipole plus single scattering (up to ~25% off transport)")
-    exit_why = {"chandrasekhar": "Chandrasekhar's exit distribution (eta = 1)",
+    exit_why = {"distance": ("Chandrasekhar's exit distribution, split by the distance each pair's light travelled "
+                             "(jaxsss.render.exit_distance: far light leaves less grazing; eta = 1)"),
+                "chandrasekhar": "Chandrasekhar's exit distribution (eta = 1)",
                 "anisotropic": ("the forward-scattering exit distribution by the light's azimuth to the view "
                                 "(jaxsss.render.exit_direction, eta = 1)"),
                 "refracted": ("Chandrasekhar's exit distribution at the refracted cosines, through the Fresnel "
@@ -330,14 +338,15 @@ def choose_bssrdf(medium: Medium, request: str = "auto") -> tuple[str, str]:
 
 
 def exit_model_for(medium: Medium) -> str:
-    """The exit distribution of a white kernel: at an index-matched boundary (``eta = 1``) ``"chandrasekhar"`` for
-    isotropic scattering and ``"anisotropic"`` (:mod:`jaxsss.render.exit_direction`) for ``g > 0``; else
+    """The exit distribution of a white kernel: at an index-matched boundary (``eta = 1``) ``"distance"`` for
+    isotropic scattering (Chandrasekhar's, by the distance from the entry: :mod:`jaxsss.render.exit_distance`) and
+    ``"anisotropic"`` (:mod:`jaxsss.render.exit_direction`) for ``g > 0``; else
     ``"refracted"`` (Chandrasekhar's at the refracted cosines, through the Fresnel boundary); see
     :func:`exit_radiance_nodes`."""
     if float(np.asarray(medium.eta)) != 1.0:
         return "refracted"
     g = 0.0 if medium.g is None else float(np.asarray(medium.g))
-    return "anisotropic" if g > 0.0 else "chandrasekhar"
+    return "anisotropic" if g > 0.0 else "distance"
 
 
 def hat_weights(mu, mus):
@@ -540,6 +549,9 @@ class WhiteKernel(eqx.Module):
     # The cut-beam passage (None: off): the loss table (K, T, X, C) of jaxsss.render.passage.passage_loss_table and
     # sigma_t' (C,); the flux then carries two more rows, the flux of light columns with a finite chord W_k and W_k t.
     passage: tuple | None = None
+    # The exit by distance (None: off): sigma_t' (C,) and the amplitude table c (K, D, C); the sums then carry 2K
+    # nodes, each node's exitance then its exitance weighted by c(d) (jaxsss.render.exit_distance).
+    exit_split: tuple | None = None
 
     def profile(self, r, kappa=None):
         """``R_k(r)`` in 1/mm^2 at distances ``r`` (mm): ``(P,)`` gives ``(P, K, C)``; ``(P, K, C)`` is evaluated
@@ -575,7 +587,19 @@ class WhiteKernel(eqx.Module):
         return jnp.exp(log_r) * self.sigma_s**2
 
     def value_shape(self, flux_shape):
-        return tuple(flux_shape[-2:])
+        k, c = flux_shape[-2:]
+        return (2 * k, c) if self.exit_split is not None else (k, c)
+
+    def _split(self, v, delta):
+        """``(P, K, C)`` -> ``(P, 2K, C)``: each node's ``v`` then ``c(d) v`` at the pairs' distance ``d`` from the
+        (unshifted) entry (:func:`jaxsss.render.exit_distance.amplitude_at`); unchanged without the split."""
+        if self.exit_split is None:
+            return v
+        from jaxsss.render.exit_distance import amplitude_at
+
+        sigma_t_prime, table = self.exit_split
+        d = jnp.sqrt(jnp.maximum(jnp.sum(delta * delta, axis=-1), 1e-300))[:, None, None]
+        return jnp.concatenate([v, amplitude_at(table, d * sigma_t_prime) * v], axis=1)
 
     def sources(self, flux):
         """What the sums gather per entity, from its flux: with a shift, ``(E, 4, K, C)`` incident flux ``F_k`` and
@@ -630,14 +654,42 @@ class WhiteKernel(eqx.Module):
         if self.curvature is None or normals is None:
             return self.profile(r)
         # Half-space profile x the sphere-to-plane diffusion ratio of the pair's curvature.
-        return self.profile(r, pair_curvature(delta, *normals)[:, None, None])
+        return self.profile(r, pair_curvature(delta, normals[0][:, :3], normals[1])[:, None, None])
+
+    def _view_kept(self, delta, normals):
+        """``(P, 1, C)`` or 1: the share of each pair's light that the eye's ray keeps when its refracted path inside
+        runs along a finite chord (the cut beam, :mod:`jaxsss.render.passage`, by reciprocity: a beam entering at the
+        shaded point against the eye's ray, cut at that chord, seen at the pair's distance; azimuthal mean). The
+        shaded points' chord and inward tangent come as columns 3-6 of ``normals[0]`` (``(P, 7)``: normal, chord mm,
+        tangent of length ``sin theta_t``; :attr:`jaxsss.render.renderer.Prepared.view_chord`); 1 without them or
+        without the passage."""
+        if self.passage is None or normals is None or normals[0].shape[-1] != 7:
+            return 1.0
+        from jaxsss.render.passage import PASSAGE_MUS, passage_loss
+
+        table, sigma_t_prime, floor = self.passage
+        if table.shape[0] != len(PASSAGE_MUS):
+            return 1.0
+        chord, tangent = normals[0][:, 3], normals[0][:, 4:7]
+        d = jnp.sqrt(jnp.maximum(jnp.sum(delta * delta, axis=-1), 1e-300))
+        mu = jnp.sqrt(jnp.clip(1.0 - jnp.sum(tangent * tangent, axis=-1), 0.0, 1.0))
+        shape = (d.shape[0], len(PASSAGE_MUS), sigma_t_prime.shape[0])
+        x = jnp.broadcast_to((d / jnp.maximum(chord, floor))[:, None, None], shape)
+        tau = jnp.broadcast_to(chord[:, None, None] * sigma_t_prime, shape)
+        # The azimuthal mean of the table (ahead 1/2): the half-plane split is the plane's, and at a sphere's limb
+        # the entries lie behind the reversed view ray where the plane loses little (chicken1's red 0.088 per pixel
+        # with the split, 0.079 with the mean, which is what the sphere walk checked; docs/path_tracer.md).
+        loss = passage_loss(table, tau, x, 0.5)  # (P, 3, C)
+        # Linear in the refracted view cosine between the table's nodes.
+        h = hat_weights(mu, PASSAGE_MUS)  # (P, 3)
+        return 1.0 - jnp.sum(h[:, :, None] * loss, axis=1, keepdims=True)
 
     def pair(self, delta, sources, normals=None):
         """``(P, K, C)``: ``R_k(|delta - s_k|) F_k`` for offsets ``delta = x - P`` ``(P, 3)`` mm and the entities'
         :meth:`sources` (``s_k = 0`` without a shift), times the curvature ratio when ``normals = (n_x, n_P)`` are
         given. The nodes stay apart: their exit distributions differ (:func:`exit_radiance_nodes`)."""
         r, f = self._distance(delta, sources)
-        return self._curved(r, delta, normals) * f
+        return self._split(self._curved(r, delta, normals) * f * self._view_kept(delta, normals), delta)
 
     def near_terms(self, delta, sources, area, rho0, normals=None):
         """A near pair's ``(point, w F, w A)``, each ``(P, K, C)``, with the near-field weight at the distance from
@@ -646,10 +698,11 @@ class WhiteKernel(eqx.Module):
         from jaxsss.render.radiance import near_weight
 
         r, f = self._distance(delta, sources)
+        f = f * self._view_kept(delta, normals)
         if r.ndim == 1:
             r = jnp.broadcast_to(r[:, None, None], f.shape)
         w = near_weight(r, rho0)
-        return (1.0 - w) * self._curved(r, delta, normals) * f, w * f, w * area[:, None, None]
+        return self._split((1.0 - w) * self._curved(r, delta, normals) * f, delta), w * f, w * area[:, None, None]
 
     def weighted_disc(self, rho0):
         """``(K, C)``: ``I_w = int_0^rho0 w(r) 2 pi r R_k(r) dr`` with the near-field weight ``w`` of
@@ -660,11 +713,23 @@ class WhiteKernel(eqx.Module):
         r = rho0 * t * t
         # dr = 2 rho0 t dt.
         f = (near_weight(r, rho0) * 2.0 * jnp.pi * r * 2.0 * rho0 * t * w)[:, None, None] * self.profile(r)
+        if self.exit_split is not None:
+            from jaxsss.render.exit_distance import amplitude_at
+
+            # The disc's exitance and its c(d)-weighted part (exit by distance).
+            sigma_t_prime, table = self.exit_split
+            c = amplitude_at(table, r[:, None, None] * sigma_t_prime)
+            return jnp.concatenate([jnp.sum(f, axis=0), jnp.sum(c * f, axis=0)])
         return jnp.sum(f, axis=0)
 
     def disc(self, spread, rho0):
-        """``(Q, K, C)``: ``E_k I_w,k`` for the near field's mean incident flux density ``spread`` ``(Q, K, C)``."""
-        return spread * self.weighted_disc(rho0)
+        """``(Q, K, C)``: ``E_k I_w,k`` for the near field's mean incident flux density ``spread`` ``(Q, K, C)``
+        (``(Q, 2K, C)``, then the ``c(d)``-weighted parts, with the exit by distance)."""
+        wd = self.weighted_disc(rho0)
+        if self.exit_split is None:
+            return spread * wd
+        k = spread.shape[1]
+        return jnp.concatenate([spread * wd[:k], spread * wd[k:]], axis=1)
 
 
 def shift_ratio_table(g: float) -> np.ndarray:
@@ -714,7 +779,8 @@ def _log(x):
 
 
 def white_kernel(medium: Medium, sources: WhiteSources, mus: tuple = (1.0,) + KERNEL_MUS,
-                 shift: bool = False, curvature: bool = False, passage: float | None = None) -> WhiteKernel:
+                 shift: bool = False, curvature: bool = False, passage: float | None = None,
+                 exit_split: bool = False) -> WhiteKernel:
     """Tabulate the profiles at incidence cosines ``mus`` (1, then the oblique nodes of ``sources``, from
     :func:`white_tables`) for ``medium`` on the grid (differentiable in ``sigma_a`` and ``sigma_s'``): normal incidence
     from the white Monte Carlo family, oblique nodes from ``sources`` (module docstring). ``shift``: shift the
@@ -723,7 +789,8 @@ def white_kernel(medium: Medium, sources: WhiteSources, mus: tuple = (1.0,) + KE
     the kernel carries the medium for the curvature ratio (:mod:`jaxsss.render.curvature`), applied to the pairs whose
     normals the sums pass, with each node's source at the depth of its refracted cosine. ``passage`` (mm; needs
     ``shift``): the kernel carries the cut-beam loss table (:mod:`jaxsss.render.passage`), resolved no finer than
-    this distance (the samples' spacing), and the flux two more rows (:meth:`WhiteKernel.sources`); None: off."""
+    this distance (the samples' spacing), and the flux two more rows (:meth:`WhiteKernel.sources`); None: off.
+    ``exit_split``: the sums carry each node's exitance and its ``c(d)``-weighted part (:mod:`jaxsss.render.exit_distance`)."""
     from jaxsss.mc.white_family import load_white_family
     from jaxsss.render.passage import passage_loss_table
 
@@ -737,6 +804,14 @@ def white_kernel(medium: Medium, sources: WhiteSources, mus: tuple = (1.0,) + KE
         albedo = jnp.broadcast_to(medium.alpha_prime, c)
         kernel = eqx.tree_at(lambda k: k.passage, kernel,
                              (passage_loss_table(albedo, mus), sigma_t_prime, jnp.asarray(passage, sigma_t_prime.dtype)),
+                             is_leaf=lambda x: x is None)
+    if exit_split:
+        from jaxsss.render.exit_distance import distance_amplitude
+
+        c = kernel.sigma_s.shape
+        amplitude = distance_amplitude(mus, jnp.broadcast_to(medium.alpha_prime, c))
+        kernel = eqx.tree_at(lambda k: k.exit_split, kernel,
+                             (jnp.broadcast_to(medium.sigma_a + medium.sigma_s_prime, c), amplitude),
                              is_leaf=lambda x: x is None)
     if not curvature:
         return kernel
@@ -821,6 +896,8 @@ def exit_radiance_nodes(medium: Medium, exitance, cos_o, mus, model: str, azimut
 
     ``model="chandrasekhar"`` (index-matched boundary, ``g = 0``): ``L = sum_k M_k X(mu_o | mu_k) / pi`` with
     :func:`exit_distribution` at the similarity albedo ``sigma_s' / (sigma_a + sigma_s')`` (exact for ``g = 0``).
+    ``"distance"``: the same with ``exitance`` ``(Q, 2K, C)``, each node's exitance and its part weighted by the
+    distance amplitude ``c(d)``, leaving by ``X`` and ``X phi`` (:func:`jaxsss.render.exit_distance.exit_split_distribution`).
     ``"anisotropic"`` (index-matched, ``g > 0``): the same with the Monte Carlo exit distribution of a
     forward-scattering half-space, which depends on the azimuth between the light's travel and the view
     (:func:`jaxsss.render.exit_direction.anisotropic_exit_distribution`; ``azimuth`` ``(Q, H - 1)`` its
@@ -841,6 +918,10 @@ def exit_radiance_nodes(medium: Medium, exitance, cos_o, mus, model: str, azimut
             raise ValueError("exit_radiance_nodes(model='anisotropic') needs azimuth=(Q, H - 1) harmonics "
                              "(jaxsss.render.exit_direction.azimuth_harmonics)")
         x = anisotropic_exit_distribution(mu_o, azimuth, mus, albedo, 0.0 if medium.g is None else medium.g)
+    elif model == "distance":
+        from jaxsss.render.exit_distance import exit_split_distribution
+
+        x = exit_split_distribution(mu_o, mus, albedo)
     else:
         x = exit_distribution(mu_o, jnp.asarray(mus), albedo)
     # Exit by Chandrasekhar's reflection function, node by node.

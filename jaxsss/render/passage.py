@@ -65,9 +65,9 @@ import numpy as np
 
 from jaxsss.fresnel import refract, snell_cosine
 
-__all__ = ["PASSAGE_ALBEDO", "PASSAGE_FLOOR", "PASSAGE_MUS", "PASSAGE_TAU", "PASSAGE_X", "cut_beam_tallies", "entry_chords",
-           "generate_passage_table", "interaction_probability", "load_passage_table", "passage_loss",
-           "passage_loss_table", "truncated_travel"]
+__all__ = ["PASSAGE_ALBEDO", "PASSAGE_FLOOR", "PASSAGE_MUS", "PASSAGE_TAU", "PASSAGE_X", "cut_beam_tallies",
+           "entry_chords", "generate_passage_table", "interaction_probability", "load_passage_table", "passage_loss",
+           "passage_loss_table", "truncated_travel", "view_chords"]
 
 PASSAGE_MUS = (1.0, 0.5, 0.1)
 """Incidence cosines of the cut-beam table: the ``white-oblique`` kernel's nodes (1 and
@@ -125,6 +125,21 @@ def entry_chords(geometry, points: np.ndarray, normals: np.ndarray, to_light: np
     return chord
 
 
+def view_chords(geometry, shading, eta: float) -> np.ndarray:
+    """``(Q, 4)``: the chord (mm) of each shaded point's refracted view ray inside the object (1e9 where it never
+    leaves) and the ray's inward direction projected on the surface (length ``sin theta_t``): the eye's side of the
+    cut beam (:meth:`jaxsss.render.bssrdf.WhiteKernel._view_kept`). ``shading``: the
+    :class:`~jaxsss.render.shading.ShadingPoints` (``pos``, ``normal``, ``to_eye``)."""
+    from jaxsss.render.bssrdf import surface_tangents
+
+    to_eye = np.asarray(shading.to_eye)[:, None, :]
+    normals = np.asarray(shading.normal)
+    cos = np.clip(np.einsum("qlj,qj->ql", to_eye, normals), 1e-6, 1.0)
+    chord = entry_chords(geometry, np.asarray(shading.pos), normals, to_eye, cos, eta)[:, 0]
+    tangent = surface_tangents(to_eye, normals, eta)[:, 0]
+    return np.concatenate([np.where(np.isfinite(chord), chord, 1e9)[:, None], tangent], axis=1)
+
+
 def interaction_probability(chord, sigma_t):
     """``1 - exp(-sigma_t t)``: the probability that light entering along a chord of length ``t`` interacts before
     it leaves.
@@ -171,40 +186,19 @@ def cut_beam_tallies(albedo: float, mu_i: float, photons: int, seed: int = 1,
     the length of the photon's first flight (bins split at ``tau_edges``) and by the exit point's distance from the
     entry point (``d_edges``, mean free paths). Cutting the beam at a chord ``tau`` removes the rows of first flights
     longer than ``tau`` (NumPy)."""
-    rng = np.random.default_rng(seed)
+    from jaxsss.render.walk import pencil_beam_walk
+
     s_edges = np.concatenate([[0.0], np.asarray(tau_edges, float), [np.inf]])
-    pos = np.zeros((photons, 3))
-    d = np.tile([np.sqrt(1.0 - mu_i * mu_i), 0.0, -mu_i], (photons, 1))
-    w = np.ones(photons)
-    first = None
     tally = np.zeros((2, len(s_edges) - 1, len(d_edges) - 1))
-    while len(w):
-        step = -np.log(rng.random(len(w)))
-        first = step if first is None else first
-        new = pos + step[:, None] * d
-        out = new[:, 2] > 0.0  # the first flight points down: it never leaves
-        if out.any():
-            p, v = pos[out], d[out]
-            exit_point = p - (p[:, 2] / v[:, 2])[:, None] * v
-            ahead = exit_point[:, 0] > 0.0
-            for half in (0, 1):
-                sel = ahead == bool(half)
-                tally[half] += np.histogram2d(first[out][sel], np.hypot(exit_point[sel, 0], exit_point[sel, 1]),
-                                              [s_edges, d_edges], weights=w[out][sel])[0]
-        keep = ~out
-        pos, w, first = new[keep], w[keep] * albedo, first[keep]
-        # Isotropic scattering.
-        u = rng.random((len(w), 2))
-        cz, phi = 1.0 - 2.0 * u[:, 0], 2.0 * np.pi * u[:, 1]
-        sz = np.sqrt(1.0 - cz * cz)
-        d = np.stack([sz * np.cos(phi), sz * np.sin(phi), cz], axis=1)
-        # Roulette: survive with probability 0.1 below a weight of 1e-3 (unbiased).
-        low = np.flatnonzero(w < 1e-3)
-        survive = rng.random(len(low)) < 0.1
-        w[low[survive]] /= 0.1
-        alive = np.ones(len(w), dtype=bool)
-        alive[low[~survive]] = False
-        pos, d, w, first = pos[alive], d[alive], w[alive], first[alive]
+
+    def add(first, exit_point, direction, weight):
+        ahead = exit_point[:, 0] > 0.0
+        for half in (0, 1):
+            sel = ahead == bool(half)
+            tally[half] += np.histogram2d(first[sel], np.hypot(exit_point[sel, 0], exit_point[sel, 1]),
+                                          [s_edges, d_edges], weights=weight[sel])[0]
+
+    pencil_beam_walk(albedo, mu_i, photons, seed, add)
     return tally / photons
 
 

@@ -415,8 +415,9 @@ def exitance_direct(medium: Medium, query_pos, sample_pos, sample_flux, sample_a
     n_q = query_pos.shape[0]
     pad = (-n_q) % block
     qp = jnp.concatenate([query_pos, jnp.broadcast_to(query_pos[:1], (pad, 3))]).reshape(-1, block, 3)
+    width = None if normals is None else normals[0].shape[1]  # 3, or 7 with the eye's chord (bssrdf.WhiteKernel)
     qn = None if normals is None else jnp.concatenate(
-        [normals[0], jnp.broadcast_to(normals[0][:1], (pad, 3))]).reshape(-1, block, 3)
+        [normals[0], jnp.broadcast_to(normals[0][:1], (pad, width))]).reshape(-1, block, width)
     kernel = _kernel(medium, kernel, shared_channel)
     n_s = sample_pos.shape[0]
     sources = kernel.sources(sample_flux)

@@ -23,7 +23,7 @@ from jaxsss.medium import Medium
 from jaxsss.render import radiance as rad
 from jaxsss.render.bssrdf import (albedo_correction, exit_model_for, incident_flux, shift_reach, surface_tangents,
                                   white_kernel, white_tables)
-from jaxsss.render.passage import PASSAGE_FLOOR, interaction_probability, truncated_travel
+from jaxsss.render.passage import PASSAGE_FLOOR, interaction_probability, truncated_travel, view_chords
 from jaxsss.render.camera import camera_frame
 from jaxsss.render.methods import Preparation, register_method
 from jaxsss.render.octree import build_octree
@@ -70,6 +70,9 @@ class Prepared(ReflectingPoints):
     light_chord: jax.Array | None = None
     # (E, 3) unit area-weighted mean normal of each entity (white kernels: the pairs' curvature; None: flat)
     ent_normal: jax.Array | None = None
+    # (Q, 4): each shaded point's refracted view ray inside, its chord (mm; 1e9 where it never leaves) and inward
+    # tangent (length sin theta_t): the eye's side of the cut beam (white-oblique; None: off)
+    view_chord: jax.Array | None = None
     bssrdf: str = eqx.field(static=True, default="dipole")
     bssrdf_mus: tuple = eqx.field(static=True, default=(1.0,))
     bssrdf_exit: str = eqx.field(static=True, default="fresnel")
@@ -111,7 +114,7 @@ class Prepared(ReflectingPoints):
                     g = 0.0 if medium.g is None else medium.g
                     irradiance = irradiance * interaction_probability(
                         self.light_chord, medium.sigma_a + medium.sigma_s_prime / (1.0 - g))
-            if self.bssrdf_exit in ("chandrasekhar", "anisotropic") and len(self.bssrdf_mus) > 1:
+            if self.bssrdf_exit in ("chandrasekhar", "distance", "anisotropic") and len(self.bssrdf_mus) > 1:
                 # Index-matched: the node mix reflects Chandrasekhar's exact total at every incidence cosine (for
                 # g > 0 the isotropic equivalent's: its curve in mu has the same shape within a few per cent).
                 albedo = jnp.broadcast_to(medium.alpha_prime, irradiance.shape[-1:])
@@ -138,12 +141,17 @@ class Prepared(ReflectingPoints):
         shift = self.light_tangent is not None
         return white_kernel(medium, self.bssrdf_tables, self.bssrdf_mus, shift=shift,
                             curvature=self.ent_normal is not None,
-                            passage=PASSAGE_FLOOR * self.rho0 if shift and self.light_chord is not None else None)
+                            passage=PASSAGE_FLOOR * self.rho0 if shift and self.light_chord is not None else None,
+                            exit_split=self.bssrdf_exit == "distance")
 
     @property
     def normals(self):
         """``(query normals, entity normals)`` for the pairs' curvature, or None (:mod:`jaxsss.render.curvature`)."""
-        return None if self.ent_normal is None else (self.query_normal, self.ent_normal)
+        if self.ent_normal is None:
+            return None
+        if self.view_chord is None:
+            return self.query_normal, self.ent_normal
+        return jnp.concatenate([self.query_normal, self.view_chord], axis=1), self.ent_normal
 
     def exitance(self, medium: Medium, blocks: slice | None = None):
         """Radiant exitance ``M_o`` at the shaded points, ``(Q, C)`` W/mm^2 (``blocks``: part of the pair list)."""
@@ -237,7 +245,7 @@ def assemble_prepared(scene, plan: ScenePlan, samples, tree, shading: ShadingPoi
 
     order = tree.order
     pairs = pairs or PairLists(None, None, None, None, near_radius(samples), np.zeros(0, int), 0)
-    mus, tables, exit_model, tangent, ent_normal = (1.0,), None, "fresnel", None, None
+    mus, tables, exit_model, tangent, ent_normal, view_chord = (1.0,), None, "fresnel", None, None, None
     if plan.bssrdf != "dipole":
         ent_normal = jnp.asarray(entity_normals(samples.normals[order] * samples.areas[order, None], tree))
         medium = scene.material.medium
@@ -247,6 +255,9 @@ def assemble_prepared(scene, plan: ScenePlan, samples, tree, shading: ShadingPoi
         if plan.bssrdf == "white-oblique":
             tangent = jnp.asarray(surface_tangents(samples.light.to_light[order], samples.normals[order],
                                                    float(medium.eta)))
+            if mirror:  # camera rays (not the validation's free points, nor the cached method's cache points)
+                geometry = geometry or SceneGeometry(scene.mesh, [o.mesh for o in scene.occluders])
+                view_chord = jnp.asarray(view_chords(geometry, shading, float(medium.eta)))
     return Prepared(
         **shaded_fields(scene, plan, shading),
         sample_pos=jnp.asarray(samples.positions[order]),
@@ -270,6 +281,7 @@ def assemble_prepared(scene, plan: ScenePlan, samples, tree, shading: ShadingPoi
         light_tangent=tangent,
         light_chord=opt(None if samples.chord is None else samples.chord[order]),  # traced for white kernels only
         ent_normal=ent_normal,
+        view_chord=view_chord,
         bssrdf=plan.bssrdf,
         bssrdf_mus=tuple(mus),
         bssrdf_exit=exit_model,

@@ -1,0 +1,56 @@
+"""A pencil beam into an index-matched isotropic half-space: the analogue walk behind the renderer's small transport
+tables (:mod:`jaxsss.render.passage`'s cut beam, :mod:`jaxsss.render.exit_distance`'s exit by distance).
+
+Units of the mean free path (``sigma_t = 1``); isotropic scattering (``g = 0``) at an index-matched boundary (every
+photon that reaches the surface leaves); absorption by weight (``albedo`` per interaction) and roulette below a weight
+of 1e-3 (survival 0.1, unbiased). NumPy: the tables are made once, offline, and shipped.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+__all__ = ["isotropic_directions", "pencil_beam_walk", "roulette"]
+
+
+def isotropic_directions(rng: np.random.Generator, n: int) -> np.ndarray:
+    """``(n, 3)`` unit directions, uniform on the sphere (isotropic scattering)."""
+    u = rng.random((n, 2))
+    cz, phi = 1.0 - 2.0 * u[:, 0], 2.0 * np.pi * u[:, 1]
+    sz = np.sqrt(1.0 - cz * cz)
+    return np.stack([sz * np.cos(phi), sz * np.sin(phi), cz], axis=1)
+
+
+def roulette(rng: np.random.Generator, w: np.ndarray) -> np.ndarray:
+    """Russian roulette below a weight of 1e-3: survive with probability 0.1 (weight x 10), unbiased. Changes ``w``
+    in place and returns the mask of photons still alive."""
+    low = np.flatnonzero(w < 1e-3)
+    survive = rng.random(len(low)) < 0.1
+    w[low[survive]] /= 0.1
+    alive = np.ones(len(w), dtype=bool)
+    alive[low[~survive]] = False
+    return alive
+
+
+def pencil_beam_walk(albedo: float, mu_i: float, photons: int, seed: int, tally) -> None:
+    """Walk ``photons`` photons entering at the origin along ``(sin theta_i, 0, -mu_i)`` and call ``tally(first,
+    exit_point, direction, weight)`` with each batch that leaves: their first flight's length ``(M,)``, where they
+    cross the surface ``(M, 3)`` (``z = 0``), their direction ``(M, 3)`` and weight ``(M,)``."""
+    rng = np.random.default_rng(seed)
+    pos = np.zeros((photons, 3))
+    d = np.tile([np.sqrt(1.0 - mu_i * mu_i), 0.0, -mu_i], (photons, 1))
+    w = np.ones(photons)
+    first = None
+    while len(w):
+        step = -np.log(rng.random(len(w)))
+        first = step if first is None else first
+        new = pos + step[:, None] * d
+        out = new[:, 2] > 0.0  # the first flight points down: it never leaves
+        if out.any():
+            p, v = pos[out], d[out]
+            tally(first[out], p - (p[:, 2] / v[:, 2])[:, None] * v, v, w[out])
+        keep = ~out
+        pos, w, first = new[keep], w[keep] * albedo, first[keep]
+        d = isotropic_directions(rng, len(w))
+        alive = roulette(rng, w)
+        pos, d, w, first = pos[alive], d[alive], w[alive], first[alive]

@@ -1,0 +1,82 @@
+"""Exit by distance (jaxsss.render.exit_distance): reference values, shapes, bad and extreme input, invariants and
+autodiff; the split kernel keeps the unsplit one's exitance."""
+
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+from jaxsss.medium import Medium
+from jaxsss.render.bssrdf import exit_distribution, white_kernel, white_tables
+from jaxsss.render.exit_distance import (SPLIT_ALBEDO, SPLIT_D, SPLIT_MU_EDGES, SPLIT_MUS, amplitude_at,
+                                         distance_amplitude, exit_split_distribution, load_exit_distance_table)
+from tests.gradcheck import assert_grad_matches_fd
+
+
+def test_a_whole_half_space_leaves_by_chandrasekhar():
+    """Reference: over a whole half-space the light-weighted amplitude is 0 (the exit is Chandrasekhar's ``X``), and
+    the shape changes no exitance (``int X phi 2 mu dmu = 0`` over the bins)."""
+    assert SPLIT_ALBEDO[2] == 0.6
+    tab = load_exit_distance_table()
+    light = tab["H"].sum(axis=-1)  # (U, A, D)
+    mean = np.sum(light * tab["c"], axis=-1) / light.sum(axis=-1)  # (U, A)
+    # Exactly 0 but where the positivity clip bites (normal incidence at albedo <= 0.3: within 0.04).
+    np.testing.assert_allclose(mean[:, 2:], 0.0, atol=2e-3)
+    np.testing.assert_allclose(mean, 0.0, atol=0.04)
+    centres = 0.5 * (SPLIT_MU_EDGES[1:] + SPLIT_MU_EDGES[:-1])
+    x = np.asarray(exit_distribution(centres, np.asarray(SPLIT_MUS), np.asarray(SPLIT_ALBEDO)))  # (B, U, A)
+    np.testing.assert_allclose(np.einsum("bua,uab,b->ua", x, tab["phi"], 2.0 * centres), 0.0, atol=1e-9)
+
+
+def test_far_light_leaves_less_grazing():
+    """Reference (the walk): a beam at cos 0.1 into albedo 0.9 leaves 3.0x a Lambertian exit at ``mu_o = 0.05`` over
+    the whole half-space (``X``); within a quarter of a mean free path 4x, at 3 mean free paths under 2x."""
+    table = distance_amplitude((0.1,), jnp.array([0.9]))
+    c = np.asarray(amplitude_at(table, jnp.array([0.125, 3.0])[:, None, None]))[:, 0, 0]
+    x = np.asarray(exit_split_distribution(jnp.array([0.05]), (0.1,), jnp.array([0.9])))[0, :, 0]
+    assert 2.9 < x[0] < 3.2
+    near, far = x[0] + c[0] * x[1], x[0] + c[1] * x[1]
+    assert far < 2.0 < 3.5 < near, (near, far)
+
+
+def test_shapes_and_bad_nodes():
+    x = exit_split_distribution(jnp.linspace(0.0, 1.0, 7), (1.0, 0.5, 0.1), jnp.array([0.2, 0.7, 0.999]))
+    assert x.shape == (7, 6, 3)
+    assert np.all(np.isfinite(np.asarray(x)))
+    table = distance_amplitude((1.0, 0.5, 0.1), jnp.array([0.2, 0.999]))
+    assert table.shape == (3, len(SPLIT_D), 2)
+    assert amplitude_at(table, jnp.array([0.0, 1.0, 1e6])[:, None, None] * jnp.ones((1, 1, 2))).shape == (3, 3, 2)
+    with pytest.raises(ValueError, match="mus"):
+        exit_split_distribution(jnp.array([0.5]), (0.3,), jnp.array([0.5]))
+
+
+def test_exit_is_positive_at_every_distance():
+    """Extreme: the exit ``X (1 + c phi)`` at every tabulated distance, incidence, albedo and exit cosine is
+    positive (the rank-1 form cannot send negative light)."""
+    tab = load_exit_distance_table()
+    assert np.all(1.0 + tab["c"][..., :, None] * tab["phi"][..., None, :] > 0.0)
+
+
+def test_split_kernel_keeps_the_exitance():
+    """Invariant: the first K nodes of the split kernel (pairs and near-field disc) are the unsplit kernel's."""
+    mus, sources = white_tables(0.0, 1.0, True)
+    medium = Medium(sigma_a=jnp.array([0.015, 0.1]), sigma_s_prime=jnp.array([0.15, 1.0]), eta=1.0)
+    plain = white_kernel(medium, sources, mus, shift=True)
+    split = white_kernel(medium, sources, mus, shift=True, exit_split=True)
+    rng = np.random.default_rng(0)
+    delta = jnp.asarray(rng.normal(size=(9, 3)) * 6.0)
+    flux = jnp.asarray(rng.uniform(0.1, 1.0, size=(9, 4, 3, 2)))
+    a = np.asarray(plain.pair(delta, plain.sources(flux)))
+    b = np.asarray(split.pair(delta, split.sources(flux)))
+    assert b.shape == (9, 6, 2)
+    np.testing.assert_allclose(b[:, :3], a, rtol=1e-12)
+    wd, wd2 = np.asarray(plain.weighted_disc(3.0)), np.asarray(split.weighted_disc(3.0))
+    np.testing.assert_allclose(wd2[:3], wd, rtol=1e-12)
+
+
+def test_gradients_match_finite_differences():
+    def f(p):
+        x = exit_split_distribution(jnp.array([0.07, 0.4, 0.93]), (1.0, 0.1), p[:2])
+        c = amplitude_at(distance_amplitude((1.0, 0.1), p[:2]), p[2] * jnp.array([1.0, 1.7])[:, None, None])
+        return jnp.sum(x * jnp.arange(1.0, 5.0)[None, :, None]) + jnp.sum(c)
+
+    assert_grad_matches_fd(f, jnp.array([0.62, 0.93, 1.4]))
