@@ -403,6 +403,10 @@ def exitance_near_gradient(medium: Medium, query_pos, sample_pos, sample_area, s
     return grad_e * weighted_disc_integral(rho0, medium) + point
 
 
+DIRECT_PAIRS = 1 << 18
+"""The direct sum's (query, sample) pairs per block at most (:func:`exitance_direct`)."""
+
+
 def exitance_direct(medium: Medium, query_pos, sample_pos, sample_flux, sample_area, rho0, *, block: int = 64,
                     shared_channel=False, kernel=None, normals=None):
     """Brute-force ``M_o`` at every query point from every sample (the reference method), ``(Q, C)`` (``(Q,) +
@@ -413,6 +417,9 @@ def exitance_direct(medium: Medium, query_pos, sample_pos, sample_flux, sample_a
     one sample's flux). ``kernel`` and ``normals``: as in :func:`exitance_near`.
     """
     n_q = query_pos.shape[0]
+    # At most DIRECT_PAIRS (query, sample) pairs per block: a white kernel keeps a few dozen (P, K, C) arrays per
+    # pair (profile, curvature, the cut beam's lookups), and 64 queries against the teapot's samples took 23 GB.
+    block = max(1, min(block, DIRECT_PAIRS // max(sample_pos.shape[0], 1)))
     pad = (-n_q) % block
     qp = jnp.concatenate([query_pos, jnp.broadcast_to(query_pos[:1], (pad, 3))]).reshape(-1, block, 3)
     width = None if normals is None else normals[0].shape[1]  # 3, or 7 with the eye's chord (bssrdf.WhiteKernel)

@@ -23,7 +23,7 @@ from jaxsss.medium import Medium
 from jaxsss.render import radiance as rad
 from jaxsss.render.bssrdf import (albedo_correction, exit_model_for, incident_flux, shift_reach, surface_tangents,
                                   white_kernel, white_tables)
-from jaxsss.render.passage import PASSAGE_FLOOR, interaction_probability, truncated_travel, view_chords
+from jaxsss.render.passage import PASSAGE_FLOOR, cut_matters, interaction_probability, truncated_travel, view_chords
 from jaxsss.render.camera import camera_frame
 from jaxsss.render.methods import Preparation, register_method
 from jaxsss.render.octree import build_octree
@@ -73,6 +73,8 @@ class Prepared(ReflectingPoints):
     # (Q, 4): each shaded point's refracted view ray inside, its chord (mm; 1e9 where it never leaves) and inward
     # tangent (length sin theta_t): the eye's side of the cut beam (white-oblique; None: off)
     view_chord: jax.Array | None = None
+    # The cut beam at both ends is on (white-oblique, and only where it matters: jaxsss.render.passage.cut_matters)
+    passage_cut: bool = eqx.field(static=True, default=False)
     bssrdf: str = eqx.field(static=True, default="dipole")
     bssrdf_mus: tuple = eqx.field(static=True, default=(1.0,))
     bssrdf_exit: str = eqx.field(static=True, default="fresnel")
@@ -103,6 +105,7 @@ class Prepared(ReflectingPoints):
                     # The oblique profiles' forward shift, shortened where the chord ends before the half-space's
                     # mean travel (grazing light on a curved or thin part).
                     travel = truncated_travel(self.light_chord, sigma_t_prime)
+                if self.passage_cut:
                     # Cut beam: the flux of columns with a finite chord, and times the chord (the kernel's loss).
                     finite = jnp.isfinite(self.light_chord)[..., None]
                     t = jnp.where(finite, self.light_chord[..., None], 0.0)
@@ -110,7 +113,8 @@ class Prepared(ReflectingPoints):
                                                 jnp.where(finite, irradiance, 0.0) * t**p, None, self.texture)
                                   for p in (0, 1)]
                 else:
-                    # Uncollided passage: only the light that interacts before its chord ends enters the profile.
+                    # Uncollided passage: only the light that interacts before its chord ends enters the profile
+                    # (the "white" kernel, and scenes where the cut beam changes too little to pay for it).
                     g = 0.0 if medium.g is None else medium.g
                     irradiance = irradiance * interaction_probability(
                         self.light_chord, medium.sigma_a + medium.sigma_s_prime / (1.0 - g))
@@ -141,7 +145,7 @@ class Prepared(ReflectingPoints):
         shift = self.light_tangent is not None
         return white_kernel(medium, self.bssrdf_tables, self.bssrdf_mus, shift=shift,
                             curvature=self.ent_normal is not None,
-                            passage=PASSAGE_FLOOR * self.rho0 if shift and self.light_chord is not None else None,
+                            passage=PASSAGE_FLOOR * self.rho0 if self.passage_cut else None,
                             exit_split=self.bssrdf_exit == "distance")
 
     @property
@@ -246,6 +250,7 @@ def assemble_prepared(scene, plan: ScenePlan, samples, tree, shading: ShadingPoi
     order = tree.order
     pairs = pairs or PairLists(None, None, None, None, near_radius(samples), np.zeros(0, int), 0)
     mus, tables, exit_model, tangent, ent_normal, view_chord = (1.0,), None, "fresnel", None, None, None
+    passage_cut = False
     if plan.bssrdf != "dipole":
         ent_normal = jnp.asarray(entity_normals(samples.normals[order] * samples.areas[order, None], tree))
         medium = scene.material.medium
@@ -255,9 +260,12 @@ def assemble_prepared(scene, plan: ScenePlan, samples, tree, shading: ShadingPoi
         if plan.bssrdf == "white-oblique":
             tangent = jnp.asarray(surface_tangents(samples.light.to_light[order], samples.normals[order],
                                                    float(medium.eta)))
+            view = None
             if mirror:  # camera rays (not the validation's free points, nor the cached method's cache points)
                 geometry = geometry or SceneGeometry(scene.mesh, [o.mesh for o in scene.occluders])
-                view_chord = jnp.asarray(view_chords(geometry, shading, float(medium.eta)))
+                view = view_chords(geometry, shading, float(medium.eta))
+            passage_cut = samples.chord is not None and cut_matters(medium, samples, view)
+            view_chord = jnp.asarray(view) if passage_cut and view is not None else None
     return Prepared(
         **shaded_fields(scene, plan, shading),
         sample_pos=jnp.asarray(samples.positions[order]),
@@ -282,6 +290,7 @@ def assemble_prepared(scene, plan: ScenePlan, samples, tree, shading: ShadingPoi
         light_chord=opt(None if samples.chord is None else samples.chord[order]),  # traced for white kernels only
         ent_normal=ent_normal,
         view_chord=view_chord,
+        passage_cut=passage_cut,
         bssrdf=plan.bssrdf,
         bssrdf_mus=tuple(mus),
         bssrdf_exit=exit_model,

@@ -275,6 +275,19 @@ def test_view_cut_gradient_matches_finite_differences():
     assert_grad_matches_fd(f, jnp.array([0.015, 0.15]))
 
 
+def test_the_cut_is_left_out_where_it_changes_little():
+    """The plan's economy (``passage.cut_matters``): skin1's sphere loses 0.6% at the plateau, under
+    ``CUT_MIN_LOSS``, and keeps the uniform passage (no extra flux rows, no view chords)."""
+    from jaxsss.render import load_scene
+    from jaxsss.render.renderer import prepare
+    from tests.export.test_compare_bssrdf import REFERENCES
+
+    prepared, _, _ = prepare(load_scene(REFERENCES / "skin1_sphere.toml"))
+    assert not prepared.passage_cut and prepared.view_chord is None
+    medium = load_scene(REFERENCES / "skin1_sphere.toml").material.medium
+    assert prepared.sample_flux(medium).shape[1] == 4
+
+
 def test_the_terminator_of_the_path_traced_ketchup_sphere():
     """Ketchup (albedo 0.75 / 0.067 / 0.020) on the 20 mm sphere, eta 1, one point light, against Mitsuba at 8192 spp
     (2.3 / 1.5 / 1.7% pixel noise; tests/export/references/ketchup_sphere). Measured 2026-11-27: with the passage the
@@ -308,6 +321,7 @@ def test_the_terminator_of_the_path_traced_ketchup_sphere():
     assert np.all(np.array(m["mare_lit"]) <= (0.092, 0.044, 0.05)), m["mare_lit"]
     assert np.all(np.abs(np.array(m["sum_ratio"]) - 1.0) <= 0.03), m["sum_ratio"]
     state = result.prepared.state
+    assert state.passage_cut and state.view_chord is not None  # ketchup's red loses 9-10% at the plateau
     half_space = eqx.tree_at(lambda s: s.light_chord, state, jnp.full_like(state.light_chord, jnp.inf))
     image = np.asarray(image_of(half_space, resolve_method("hierarchical").params(scene)))
     flat = compare_images(image, ref, pixels, coverage=coverage)
