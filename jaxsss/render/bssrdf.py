@@ -790,7 +790,8 @@ def white_kernel(medium: Medium, sources: WhiteSources, mus: tuple = (1.0,) + KE
     normals the sums pass, with each node's source at the depth of its refracted cosine. ``passage`` (mm; needs
     ``shift``): the kernel carries the cut-beam loss table (:mod:`jaxsss.render.passage`), resolved no finer than
     this distance (the samples' spacing), and the flux two more rows (:meth:`WhiteKernel.sources`); None: off.
-    ``exit_split``: the sums carry each node's exitance and its ``c(d)``-weighted part (:mod:`jaxsss.render.exit_distance`)."""
+    ``exit_split``: the sums carry each node's exitance and its ``c(d)``-weighted part
+    (:mod:`jaxsss.render.exit_distance`)."""
     from jaxsss.mc.white_family import load_white_family
     from jaxsss.render.passage import passage_loss_table
 
@@ -803,7 +804,8 @@ def white_kernel(medium: Medium, sources: WhiteSources, mus: tuple = (1.0,) + KE
         sigma_t_prime = jnp.broadcast_to(medium.sigma_a + medium.sigma_s_prime, c)
         albedo = jnp.broadcast_to(medium.alpha_prime, c)
         kernel = eqx.tree_at(lambda k: k.passage, kernel,
-                             (passage_loss_table(albedo, mus), sigma_t_prime, jnp.asarray(passage, sigma_t_prime.dtype)),
+                             (passage_loss_table(albedo, mus), sigma_t_prime,
+                              jnp.asarray(passage, sigma_t_prime.dtype)),
                              is_leaf=lambda x: x is None)
     if exit_split:
         from jaxsss.render.exit_distance import distance_amplitude
@@ -897,7 +899,8 @@ def exit_radiance_nodes(medium: Medium, exitance, cos_o, mus, model: str, azimut
     ``model="chandrasekhar"`` (index-matched boundary, ``g = 0``): ``L = sum_k M_k X(mu_o | mu_k) / pi`` with
     :func:`exit_distribution` at the similarity albedo ``sigma_s' / (sigma_a + sigma_s')`` (exact for ``g = 0``).
     ``"distance"``: the same with ``exitance`` ``(Q, 2K, C)``, each node's exitance and its part weighted by the
-    distance amplitude ``c(d)``, leaving by ``X`` and ``X phi`` (:func:`jaxsss.render.exit_distance.exit_split_distribution`).
+    distance amplitude ``c(d)``, leaving by ``X`` and ``X phi``
+    (:func:`jaxsss.render.exit_distance.exit_split_distribution`).
     ``"anisotropic"`` (index-matched, ``g > 0``): the same with the Monte Carlo exit distribution of a
     forward-scattering half-space, which depends on the azimuth between the light's travel and the view
     (:func:`jaxsss.render.exit_direction.anisotropic_exit_distribution`; ``azimuth`` ``(Q, H - 1)`` its

@@ -66,8 +66,8 @@ import numpy as np
 from jaxsss.fresnel import refract, snell_cosine
 
 __all__ = ["CUT_MIN_LOSS", "PASSAGE_ALBEDO", "PASSAGE_FLOOR", "PASSAGE_MUS", "PASSAGE_TAU", "PASSAGE_X",
-           "cut_beam_tallies", "cut_matters", "entry_chords", "generate_passage_table", "interaction_probability", "load_passage_table",
-           "passage_loss", "passage_loss_table", "truncated_travel", "view_chords"]
+           "cut_beam_tallies", "cut_matters", "entry_chords", "generate_passage_table", "interaction_probability",
+           "load_passage_table", "passage_loss", "passage_loss_table", "truncated_travel", "view_chords"]
 
 PASSAGE_MUS = (1.0, 0.5, 0.1)
 """Incidence cosines of the cut-beam table: the ``white-oblique`` kernel's nodes (1 and
@@ -243,7 +243,8 @@ def cut_beam_tallies(albedo: float, mu_i: float, photons: int, seed: int = 1,
 
 
 def _loss_from_tallies(tally: np.ndarray, d_edges: np.ndarray = _D_EDGES) -> np.ndarray:
-    """``(len(PASSAGE_TAU), len(PASSAGE_X))`` loss (one half of :func:`cut_beam_tallies`) ``1 - cut / full`` from :func:`cut_beam_tallies`: over the annulus
+    """``(len(PASSAGE_TAU), len(PASSAGE_X))`` loss ``1 - cut / full`` from one half of :func:`cut_beam_tallies`: over
+    the annulus
     about each ``x`` node (half-way to its neighbours), held from the previous node where the full beam puts out less
     than 1e-7 per photon there; 0 at the last ``tau`` node."""
     centres = np.sqrt(d_edges[1:] * np.maximum(d_edges[:-1], 1e-3))
@@ -292,9 +293,9 @@ def load_passage_table() -> dict:
 
 
 def passage_loss_table(albedo, mus) -> jnp.ndarray:
-    """``(K, T, X, 2, C)``: the loss table (behind, ahead) at the kernel's incidence nodes ``mus`` (each one of :data:`PASSAGE_MUS`),
-    interpolated linearly to the channels' similarity albedos ``albedo`` ``(C,)`` (held beyond the ends;
-    differentiable in ``albedo``)."""
+    """``(K, T, X, 2, C)``: the loss table (behind, ahead) at the kernel's incidence nodes ``mus`` (each one of
+    :data:`PASSAGE_MUS`), interpolated linearly to the channels' similarity albedos ``albedo`` ``(C,)`` (held beyond
+    the ends; differentiable in ``albedo``)."""
     tab = load_passage_table()
     missing = [m for m in mus if float(m) not in PASSAGE_MUS]
     if missing:
@@ -348,7 +349,8 @@ def main(argv=None) -> int:
     args = p.parse_args(argv)
     if not args.regenerate:
         tab = load_passage_table()
-        print(f"{PASSAGE_TABLE}: loss {tab['loss'].shape} (mu_i, albedo, tau, x = d / t, behind/ahead); {int(tab['photons'])} "
+        print(f"{PASSAGE_TABLE}: loss {tab['loss'].shape} (mu_i, albedo, tau, x = d / t, behind/ahead); "
+              f"{int(tab['photons'])} "
               f"photons per node, {float(tab['seconds']):.0f} s")
         return 0
     tab = generate_passage_table(args.photons)
