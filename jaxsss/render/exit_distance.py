@@ -139,10 +139,10 @@ def _node_rows(name: str, mus, albedo):
     if missing:
         raise ValueError(f"exit_distance: mus {missing} have no exit-by-distance table; it has {SPLIT_MUS}")
     tab = jnp.asarray(load_exit_distance_table()[name][[SPLIT_MUS.index(float(m)) for m in mus]])  # (K, A, ...)
-    nodes = jnp.asarray(SPLIT_ALBEDO)
-    a = jnp.clip(jnp.atleast_1d(albedo), nodes[0], nodes[-1])
-    i = jnp.clip(jnp.searchsorted(nodes, a, side="right").astype(jnp.int32) - 1, 0, len(SPLIT_ALBEDO) - 2)
-    t = ((a - nodes[i]) / (nodes[i + 1] - nodes[i])).reshape((1, -1) + (1,) * (tab.ndim - 2))
+    from jaxsss.render.passage import node_interval
+
+    i, t = node_interval(jnp.atleast_1d(albedo), SPLIT_ALBEDO)
+    t = t.reshape((1, -1) + (1,) * (tab.ndim - 2))
     # Linear in the albedo.
     return tab[:, i] * (1.0 - t) + tab[:, i + 1] * t
 
@@ -156,11 +156,10 @@ def distance_amplitude(mus, albedo) -> jnp.ndarray:
 def amplitude_at(table, d_mfp):
     """``(P, K, C)``: the amplitude ``c`` of :func:`distance_amplitude`'s ``table`` ``(K, D, C)`` at ``d_mfp``
     ``(P, 1 or K, C)`` mean free paths from the entry (linear between :data:`SPLIT_D`, held beyond)."""
-    nodes = jnp.asarray(SPLIT_D)
+    from jaxsss.render.passage import node_interval
+
     n_k, n_d, n_c = table.shape
-    d = jnp.clip(d_mfp, nodes[0], nodes[-1])
-    i = jnp.clip(jnp.searchsorted(nodes, d, side="right").astype(jnp.int32) - 1, 0, n_d - 2)
-    t = (d - nodes[i]) / (nodes[i + 1] - nodes[i])
+    i, t = node_interval(d_mfp, SPLIT_D)
     k = jnp.arange(n_k, dtype=jnp.int32)[None, :, None]
     c = jnp.arange(n_c, dtype=jnp.int32)[None, None, :]
     flat = table.reshape(-1)

@@ -67,7 +67,8 @@ from jaxsss.fresnel import refract, snell_cosine
 
 __all__ = ["CUT_MIN_LOSS", "PASSAGE_ALBEDO", "PASSAGE_FLOOR", "PASSAGE_MUS", "PASSAGE_TAU", "PASSAGE_X",
            "cut_beam_tallies", "cut_matters", "entry_chords", "generate_passage_table", "interaction_probability",
-           "load_passage_table", "passage_loss", "passage_loss_table", "truncated_travel", "view_chords"]
+           "load_passage_table", "node_interval", "passage_loss", "passage_loss_table", "truncated_travel",
+           "view_chords"]
 
 PASSAGE_MUS = (1.0, 0.5, 0.1)
 """Incidence cosines of the cut-beam table: the ``white-oblique`` kernel's nodes (1 and
@@ -301,17 +302,15 @@ def passage_loss_table(albedo, mus) -> jnp.ndarray:
     if missing:
         raise ValueError(f"passage_loss_table: mus {missing} have no cut-beam table; the table has {PASSAGE_MUS}")
     loss = jnp.asarray(tab["loss"][[PASSAGE_MUS.index(float(m)) for m in mus]])  # (K, A, T, X, 2)
-    nodes = jnp.asarray(PASSAGE_ALBEDO)
-    a = jnp.clip(jnp.atleast_1d(albedo), nodes[0], nodes[-1])
-    i = jnp.clip(jnp.searchsorted(nodes, a, side="right").astype(jnp.int32) - 1, 0, len(PASSAGE_ALBEDO) - 2)
-    t = (a - nodes[i]) / (nodes[i + 1] - nodes[i])
+    i, t = node_interval(jnp.atleast_1d(albedo), PASSAGE_ALBEDO)
     # Linear in the albedo between the table's nodes.
     w0, w1 = (1.0 - t)[None, :, None, None, None], t[None, :, None, None, None]
     return jnp.moveaxis(loss[:, i] * w0 + loss[:, i + 1] * w1, 1, -1)
 
 
-def _cell(v, nodes):
-    """Interval index and fraction of ``v`` among sorted ``nodes`` (held beyond the ends)."""
+def node_interval(v, nodes):
+    """``(i, t)``: the interval index (int32) and fraction of ``v`` (any shape) among the sorted ``nodes``, held
+    beyond the ends: linear interpolation is ``(1 - t) f[i] + t f[i + 1]``."""
     nodes = jnp.asarray(nodes)
     v = jnp.clip(v, nodes[0], nodes[-1])
     i = jnp.clip(jnp.searchsorted(nodes, v, side="right").astype(jnp.int32) - 1, 0, nodes.shape[0] - 2)
@@ -323,8 +322,8 @@ def passage_loss(table, tau, x, ahead=0.5):
     ``(tau, x)`` on ``table`` (:func:`passage_loss_table`) and linear between the half-planes behind (``ahead = 0``)
     and ahead of the entry (``ahead = 1``; 0.5: the azimuthal mean); ``tau``, ``x``, ``ahead`` ``(P, K, C)``."""
     n_k, n_t, n_x, _, n_c = table.shape
-    it, ft = _cell(tau, PASSAGE_TAU)
-    ix, fx = _cell(x, PASSAGE_X)
+    it, ft = node_interval(tau, PASSAGE_TAU)
+    ix, fx = node_interval(x, PASSAGE_X)
     k = jnp.arange(n_k, dtype=jnp.int32)[None, :, None]
     c = jnp.arange(n_c, dtype=jnp.int32)[None, None, :]
     flat = table.reshape(-1)
