@@ -55,7 +55,7 @@ import numpy as np
 import optimistix as optx
 
 import jaxsss
-from jaxsss._config import compile_bound_options
+from jaxsss._config import compile_bound_options, render_jit
 from jaxsss.validate import trusted_traces
 from fitting.discrepancy import RENDER_MODEL_ERROR, ModelError, discrepancy_modes, light_key
 from fitting.result import CORRELATION_LIMIT
@@ -198,13 +198,13 @@ def _channel_residuals_jvp(primals, tangents):
     return r, d_a * t_theta[ch] + d_s * t_theta[c + ch]
 
 
-@eqx.filter_jit
+@render_jit
 def _residuals(theta, args):
     """:func:`_channel_residuals`, compiled (the start grid, the solve and the standard errors call it)."""
     return _channel_residuals(theta, args)
 
 
-@eqx.filter_jit
+@render_jit
 def _solve(theta0, args, solver, max_steps):
     return optx.least_squares(_residuals, solver, theta0, args=args, max_steps=max_steps, throw=False)
 

@@ -59,6 +59,42 @@ def compile_bound_options() -> dict | None:
     return dict(COMPILE_BOUND_OPTIONS) if jax.default_backend() == "cpu" else None
 
 
+RENDER_COMPILER_OPTIONS = {"xla_cpu_experimental_ynn_fusion_type": ""}
+"""XLA compiler options of the renderer's image programs (``eqx.filter_jit(..., compiler_options=...)``): no YNNPACK
+fusions. XLA:CPU (jaxlib 0.10) hands reductions and the elementwise work around them to YNNPACK; in the white
+kernels' pair sums (gathers, a sum over a few nodes, float64) that took 10-20x as long as XLA's own loops: the eye's
+cut-beam factor 81 -> 4 ms per block of 2^16 pairs, the skin1 sphere's image 0.77 -> 0.54 s (measured 2026-11-28,
+docs/benchmarks.md). Not set process-wide: the Monte Carlo engine was not faster without them. The option is a field
+of XLA's DebugOptions, which every backend accepts; only XLA:CPU reads it. :func:`render_jit` applies them."""
+
+
+def render_jit(fun):
+    """``eqx.filter_jit(fun)`` compiled with :data:`RENDER_COMPILER_OPTIONS` when called at top level, and without
+    them inside another trace (a user's ``jax.jit``, a fit's residuals), where JAX refuses compiler options on a
+    nested jit: the outer program's options apply there. ``.lower`` is the top-level one's."""
+    import functools
+
+    import equinox as eqx
+    import jax
+
+    plain = eqx.filter_jit(fun)
+    tuned = eqx.filter_jit(fun, compiler_options=RENDER_COMPILER_OPTIONS)
+
+    @functools.wraps(fun)
+    def call(*args, **kwargs):
+        if any(isinstance(x, jax.core.Tracer) for x in jax.tree_util.tree_leaves((args, kwargs))):
+            return plain(*args, **kwargs)
+        try:
+            return tuned(*args, **kwargs)
+        except ValueError as e:  # traced after all (the arguments were closed-over constants): nested
+            if "top-level" not in str(e):
+                raise
+            return plain(*args, **kwargs)
+
+    call.lower = tuned.lower
+    return call
+
+
 _CPU_FIELDS = ("vendor_id", "model name", "flags", "cpu family", "model", "Features", "CPU implementer",
                "CPU architecture", "CPU variant", "CPU part", "isa", "cpu")
 """/proc/cpuinfo fields (x86, arm64, riscv, power) that name the CPU and its instruction-set extensions."""

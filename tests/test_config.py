@@ -110,3 +110,26 @@ def test_compile_bound_options_are_xla_options_that_change_nothing_but_compilati
     assert float(jax.jit(f, compiler_options=opts)(x)) == pytest.approx(float(jax.jit(f)(x)), rel=1e-14)
     with pytest.raises(jax.errors.JaxRuntimeError, match="No such compile option"):
         jax.jit(f, compiler_options={**opts, "xla_not_an_option": True})(x)
+
+
+def test_render_jit_takes_its_options_at_top_level_and_none_when_nested():
+    """jaxsss._config.render_jit: the options are real XLA options (the top-level program has no YNNPACK fusion and the
+    same numbers), and the function still runs inside a user's jit, with the argument traced or closed over (JAX
+    refuses compiler options on a nested jit)."""
+    import jax
+    import jax.numpy as jnp
+
+    from jaxsss._config import RENDER_COMPILER_OPTIONS, render_jit
+
+    def f(x):
+        return jnp.sum(jnp.exp(-x) * x, axis=-1)
+
+    g = render_jit(f)
+    x = jnp.linspace(0.1, 3.0, 4096 * 8).reshape(4096, 8)
+    expected = jax.jit(f)(x)
+    assert "ynn" not in g.lower(x).compile().compiled.as_text()
+    assert "ynn" not in jax.jit(f, compiler_options=RENDER_COMPILER_OPTIONS).lower(x).compile().as_text()
+    assert jnp.allclose(g(x), expected, rtol=1e-14)
+    assert jnp.allclose(jax.jit(lambda y: g(y) * 2.0)(x), 2.0 * expected, rtol=1e-14)  # traced argument
+    assert jnp.allclose(jax.jit(lambda s: g(x) * s)(2.0), 2.0 * expected, rtol=1e-14)  # closed over
+    assert jnp.allclose(jax.jvp(g, (x,), (jnp.ones_like(x),))[0], expected, rtol=1e-14)

@@ -83,6 +83,7 @@ FORWARD_G`` and ``eta`` in the family's range, the dipole with its reason otherw
 
 from __future__ import annotations
 
+import functools
 import math
 from pathlib import Path
 
@@ -97,8 +98,8 @@ from jaxsss.render.curvature import N_KAPPA, curvature_coordinate, log_ratio_tab
 from jaxsss.render.exit_direction import anisotropic_exit_distribution
 
 __all__ = ["BSSRDFS", "GRID_PER_DECADE", "OBLIQUE_MUS", "WhiteKernel", "albedo_correction", "chandrasekhar_h",
-           "choose_bssrdf", "directional_albedo", "exit_distribution", "exit_radiance_nodes", "half_space_reflection",
-           "hat_weights",
+           "choose_bssrdf", "directional_albedo", "exit_distribution", "exit_radiance_nodes", "exit_weights",
+           "half_space_reflection", "hat_weights",
            "refracted_exit_distribution", "shift_ratio_table", "surface_tangents", "incident_flux", "oblique_dir",
            "oblique_pairs",
            "oblique_sources", "shift_reach", "WHITE_DENSITY", "WhiteSources", "white_kernel", "white_table",
@@ -264,12 +265,20 @@ class WhiteSources(eqx.Module):
 def white_tables(g: float, n: float, oblique: bool, mus: tuple | None = None) -> tuple[tuple[float, ...], WhiteSources] | None:
     """``(mus, sources)`` for the ``white`` (normal incidence only) or ``white-oblique`` kernel (oblique cosines
     ``mus``, default :data:`KERNEL_MUS`), or None when ``(g, n)`` is outside the white Monte Carlo family."""
-    from jaxsss.mc.white_family import block_operands, covers, load_white_family
+    from jaxsss.mc.white_family import covers
 
     if not covers(g, n):
         return None
+    obl = tuple(float(m) for m in (KERNEL_MUS if mus is None else mus)) if oblique else ()
+    return _white_tables(float(g), float(n), obl)
+
+
+@functools.lru_cache(maxsize=16)
+def _white_tables(g: float, n: float, obl: tuple) -> tuple[tuple[float, ...], WhiteSources]:
+    """:func:`white_tables`, kept per ``(g, n, oblique nodes)`` (a render's geometry took 45 ms to gather them)."""
+    from jaxsss.mc.white_family import block_operands, load_white_family
+
     load_white_family()  # host side, before any trace (white_kernel)
-    obl = tuple(KERNEL_MUS if mus is None else mus) if oblique else ()
     src = oblique_sources(g, n) if obl else ()
     tables = tuple(tuple(white_table(a, b, mu) for mu in obl) for a, b, _ in src)
     keys = tuple(dict.fromkeys([(float(g), float(n))] + [(float(a), float(b)) for a, b, _ in src]))
@@ -546,8 +555,9 @@ class WhiteKernel(eqx.Module):
     # The curvature table (None: flat): (K (G - 1) (N_KAPPA - 1) C, 4) bilinear coefficients of log(R C) per cell,
     # sigma_t' (C,) and each node's source depth (K, C) (:func:`white_kernel`).
     curvature: tuple | None = None
-    # The cut-beam passage (None: off): the loss table (K, T, X, C) of jaxsss.render.passage.passage_loss_table and
-    # sigma_t' (C,); the flux then carries two more rows, the flux of light columns with a finite chord W_k and W_k t.
+    # The cut-beam passage (None: off): the loss table's cells (K, T - 1, X - 1, C, 8) (jaxsss.render.passage.
+    # passage_cells), sigma_t' (C,) and the floor of the chord (mm); the flux then carries two more rows, the flux of
+    # light columns with a finite chord W_k and W_k t.
     passage: tuple | None = None
     # The exit by distance (None: off): sigma_t' (C,) and the amplitude table c (K, D, C); the sums then carry 2K
     # nodes, each node's exitance then its exitance weighted by c(d) (jaxsss.render.exit_distance).
@@ -586,20 +596,39 @@ class WhiteKernel(eqx.Module):
         # R = sigma_s^2 R_optical.
         return jnp.exp(log_r) * self.sigma_s**2
 
-    def value_shape(self, flux_shape):
+    def value_shape(self, flux_shape, weighted: bool = False):
+        """One pair's value: ``(K, C)`` node exitances (``(2K, C)`` with the exit by distance), or ``(C,)`` radiance
+        when the sums pass exit ``weights`` (:meth:`pair`)."""
         k, c = flux_shape[-2:]
+        if weighted:
+            return (c,)
         return (2 * k, c) if self.exit_split is not None else (k, c)
 
-    def _split(self, v, delta):
-        """``(P, K, C)`` -> ``(P, 2K, C)``: each node's ``v`` then ``c(d) v`` at the pairs' distance ``d`` from the
-        (unshifted) entry (:func:`jaxsss.render.exit_distance.amplitude_at`); unchanged without the split."""
-        if self.exit_split is None:
-            return v
+    def _amplitude(self, delta):
+        """``(P, K, C)``: the exit-by-distance amplitude ``c(d)`` at the pairs' distance ``d`` from the (unshifted)
+        entry (:func:`jaxsss.render.exit_distance.amplitude_at`)."""
         from jaxsss.render.exit_distance import amplitude_at
 
         sigma_t_prime, table = self.exit_split
         d = jnp.sqrt(jnp.maximum(jnp.sum(delta * delta, axis=-1), 1e-300))[:, None, None]
-        return jnp.concatenate([v, amplitude_at(table, d * sigma_t_prime) * v], axis=1)
+        return amplitude_at(table, d * sigma_t_prime)
+
+    def _split(self, v, delta):
+        """``(P, K, C)`` -> ``(P, 2K, C)``: each node's ``v`` then ``c(d) v`` (:meth:`_amplitude`); unchanged without
+        the split."""
+        if self.exit_split is None:
+            return v
+        return jnp.concatenate([v, self._amplitude(delta) * v], axis=1)
+
+    def _radiance(self, v, delta, weights):
+        """``(P, C)``: the pairs' node values ``v`` ``(P, K, C)`` as radiance, ``sum_k v_k (W_k + c_k(d) W_K+k)``
+        with the shaded points' exit ``weights`` ``(P, J, C)`` (:func:`exit_weights`; ``J = K`` without the split).
+        Each ``v_k`` is used once: with the split's two uses XLA computed the whole pair twice (skin1's far sum took
+        1.8x as long)."""
+        k = v.shape[1]
+        if self.exit_split is None:
+            return jnp.sum(v * weights, axis=1)
+        return jnp.sum(v * (weights[:, :k] + self._amplitude(delta) * weights[:, k:]), axis=1)
 
     def sources(self, flux):
         """What the sums gather per entity, from its flux: with a shift, ``(E, 4, K, C)`` incident flux ``F_k`` and
@@ -641,7 +670,8 @@ class WhiteKernel(eqx.Module):
         safe = jnp.maximum(chord, floor)
         # Ahead of the entry along the light's travel (the shift's direction; 1/2 where there is none).
         shift = sources[:, 1:4]
-        along = jnp.einsum("pj,pjkc->pkc", delta, shift)
+        # (A sum of products, not an einsum: that lowers to 2^16 batched 1 x 3 matrix products, 4x the whole pair.)
+        along = jnp.sum(delta[:, :, None, None] * shift, axis=1)
         norm = jnp.sqrt(jnp.maximum(jnp.sum(shift * shift, axis=1), 1e-300)) * d
         ahead = 0.5 * (1.0 + jnp.where(norm > 1e-12, along / jnp.where(norm > 1e-12, norm, 1.0), 0.0))
         # Cut beam: the light lost at d / t chords from the entry (transport table).
@@ -682,19 +712,26 @@ class WhiteKernel(eqx.Module):
         loss = passage_loss(table, tau, x, 0.5)  # (P, 3, C)
         # Linear in the refracted view cosine between the table's nodes.
         h = hat_weights(mu, PASSAGE_MUS)  # (P, 3)
-        return 1.0 - jnp.sum(h[:, :, None] * loss, axis=1, keepdims=True)
+        return jax.lax.optimization_barrier(1.0 - jnp.sum(h[:, :, None] * loss, axis=1, keepdims=True))
 
-    def pair(self, delta, sources, normals=None):
+    def pair(self, delta, sources, normals=None, weights=None):
         """``(P, K, C)``: ``R_k(|delta - s_k|) F_k`` for offsets ``delta = x - P`` ``(P, 3)`` mm and the entities'
         :meth:`sources` (``s_k = 0`` without a shift), times the curvature ratio when ``normals = (n_x, n_P)`` are
-        given. The nodes stay apart: their exit distributions differ (:func:`exit_radiance_nodes`)."""
+        given. The nodes stay apart: their exit distributions differ (:func:`exit_radiance_nodes`). With the shaded
+        points' exit ``weights`` ``(P, J, C)`` (:func:`exit_weights`), the pairs' radiance ``(P, C)`` instead."""
         r, f = self._distance(delta, sources)
-        return self._split(self._curved(r, delta, normals) * f * self._view_kept(delta, normals), delta)
+        v = self._curved(r, delta, normals) * f
+        view = self._view_kept(delta, normals)  # (P, 1, C) or 1
+        if weights is None:
+            return self._split(v * view, delta)
+        # The eye's cut after the sum over the nodes (it is the same for all of them).
+        return self._radiance(v, delta, weights) * (view[:, 0] if jnp.ndim(view) else view)
 
-    def near_terms(self, delta, sources, area, rho0, normals=None):
+    def near_terms(self, delta, sources, area, rho0, normals=None, weights=None):
         """A near pair's ``(point, w F, w A)``, each ``(P, K, C)``, with the near-field weight at the distance from
         the *shifted* entry point, so that the point part ``(1 - w) R`` vanishes where ``R`` peaks
-        (:func:`jaxsss.render.radiance.exitance_near`)."""
+        (:func:`jaxsss.render.radiance.exitance_near`); with exit ``weights`` (:meth:`pair`) the point part is the
+        pairs' radiance ``(P, C)``."""
         from jaxsss.render.radiance import near_weight
 
         r, f = self._distance(delta, sources)
@@ -702,7 +739,9 @@ class WhiteKernel(eqx.Module):
         if r.ndim == 1:
             r = jnp.broadcast_to(r[:, None, None], f.shape)
         w = near_weight(r, rho0)
-        return self._split((1.0 - w) * self._curved(r, delta, normals) * f, delta), w * f, w * area[:, None, None]
+        point = (1.0 - w) * self._curved(r, delta, normals) * f
+        point = self._split(point, delta) if weights is None else self._radiance(point, delta, weights)
+        return point, w * f, w * area[:, None, None]
 
     def weighted_disc(self, rho0):
         """``(K, C)``: ``I_w = int_0^rho0 w(r) 2 pi r R_k(r) dr`` with the near-field weight ``w`` of
@@ -793,7 +832,7 @@ def white_kernel(medium: Medium, sources: WhiteSources, mus: tuple = (1.0,) + KE
     ``exit_split``: the sums carry each node's exitance and its ``c(d)``-weighted part
     (:mod:`jaxsss.render.exit_distance`)."""
     from jaxsss.mc.white_family import load_white_family
-    from jaxsss.render.passage import passage_loss_table
+    from jaxsss.render.passage import passage_cells, passage_loss_table
 
     load_white_family()
     kernel = _white_kernel(medium, sources, mus, shift)
@@ -804,7 +843,7 @@ def white_kernel(medium: Medium, sources: WhiteSources, mus: tuple = (1.0,) + KE
         sigma_t_prime = jnp.broadcast_to(medium.sigma_a + medium.sigma_s_prime, c)
         albedo = jnp.broadcast_to(medium.alpha_prime, c)
         kernel = eqx.tree_at(lambda k: k.passage, kernel,
-                             (passage_loss_table(albedo, mus), sigma_t_prime,
+                             (passage_cells(passage_loss_table(albedo, mus)), sigma_t_prime,
                               jnp.asarray(passage, sigma_t_prime.dtype)),
                              is_leaf=lambda x: x is None)
     if exit_split:
@@ -907,13 +946,25 @@ def exit_radiance_nodes(medium: Medium, exitance, cos_o, mus, model: str, azimut
     :func:`~jaxsss.render.exit_direction.azimuth_harmonics`). ``"refracted"`` (a dielectric boundary): the same with
     :func:`refracted_exit_distribution`. ``"fresnel"``: the dipole renderer's Lambertian exit through the boundary,
     ``F_t(cos_o) sum_k M_k / (pi F_dt,ext)`` (:func:`jaxsss.render.radiance.exit_radiance`)."""
+    # The exit is linear in the nodes' exitance.
+    return jnp.sum(exitance * exit_weights(medium, cos_o, mus, model, exitance.shape[1], exitance.shape[-1], azimuth),
+                   axis=1)
+
+
+def exit_weights(medium: Medium, cos_o, mus, model: str, n_nodes: int, n_channels: int, azimuth=None):
+    """``(Q, J, C)``: the radiance towards the eye (W/(mm^2 sr)) per unit exitance (W/mm^2) of each of the ``J =
+    n_nodes`` node rows, at exit cosines ``cos_o`` ``(Q,)``, so that :func:`exit_radiance_nodes` is ``sum_j M_j W_j``
+    (models and arguments as there). The sums take them per shaded point and add each pair's nodes as radiance
+    (:meth:`WhiteKernel.pair` with ``weights``)."""
     from jaxsss.render.radiance import exit_radiance
 
-    if model == "fresnel":
-        return exit_radiance(medium, jnp.sum(exitance, axis=1), cos_o)
-    sigma_s_prime = jnp.broadcast_to(medium.sigma_s_prime, exitance.shape[-1:])
-    albedo = sigma_s_prime / (medium.sigma_a + sigma_s_prime)
     mu_o = jnp.clip(cos_o, 0.0, 1.0)
+    if model == "fresnel":
+        # The dipole's Lambertian exit through the boundary, the same for every node.
+        w = exit_radiance(medium, jnp.ones(mu_o.shape + (n_channels,)), cos_o)
+        return jnp.broadcast_to(w[:, None], (mu_o.shape[0], n_nodes, n_channels))
+    sigma_s_prime = jnp.broadcast_to(medium.sigma_s_prime, (n_channels,))
+    albedo = sigma_s_prime / (medium.sigma_a + sigma_s_prime)
     if model == "refracted":
         x = refracted_exit_distribution(mu_o, jnp.asarray(mus), albedo, jnp.asarray(medium.eta))
     elif model == "anisotropic":
@@ -928,4 +979,4 @@ def exit_radiance_nodes(medium: Medium, exitance, cos_o, mus, model: str, azimut
     else:
         x = exit_distribution(mu_o, jnp.asarray(mus), albedo)
     # Exit by Chandrasekhar's reflection function, node by node.
-    return jnp.sum(exitance * x, axis=1) / jnp.pi
+    return jnp.broadcast_to(x / jnp.pi, (mu_o.shape[0], n_nodes, n_channels))

@@ -57,6 +57,7 @@ import jax.numpy as jnp
 import numpy as np
 from scipy.spatial import cKDTree
 
+from jaxsss._config import render_jit
 from jaxsss.fresnel import fresnel_reflectance
 from jaxsss.medium import Medium
 from jaxsss.reflectance import medium_total_diffuse_reflectance
@@ -269,13 +270,13 @@ class CachedPrepared(eqx.Module):
         return _cached_image(self, medium)
 
 
-@eqx.filter_jit
+@render_jit
 def _cached_image(prepared: CachedPrepared, medium: Medium):
     pts = prepared.points
     return pts.image_from_radiance(pts.radiance_from_exitance(medium, prepared.exitance(medium)))
 
 
-@eqx.filter_jit
+@render_jit
 def _cache_values(prepared: CachedPrepared, medium: Medium):
     return prepared.cache_values(medium)
 

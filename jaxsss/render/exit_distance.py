@@ -156,15 +156,10 @@ def distance_amplitude(mus, albedo) -> jnp.ndarray:
 def amplitude_at(table, d_mfp):
     """``(P, K, C)``: the amplitude ``c`` of :func:`distance_amplitude`'s ``table`` ``(K, D, C)`` at ``d_mfp``
     ``(P, 1 or K, C)`` mean free paths from the entry (linear between :data:`SPLIT_D`, held beyond)."""
-    from jaxsss.render.passage import node_interval
+    from jaxsss.render.passage import piecewise_linear
 
-    n_k, n_d, n_c = table.shape
-    i, t = node_interval(d_mfp, SPLIT_D)
-    k = jnp.arange(n_k, dtype=jnp.int32)[None, :, None]
-    c = jnp.arange(n_c, dtype=jnp.int32)[None, None, :]
-    flat = table.reshape(-1)
     # Linear in d between the nodes.
-    return (1.0 - t) * flat[(k * n_d + i) * n_c + c] + t * flat[(k * n_d + i + 1) * n_c + c]
+    return piecewise_linear(d_mfp, SPLIT_D, jnp.moveaxis(table, 1, 0)[:, None])
 
 
 def exit_split_distribution(mu_o, mus, albedo):

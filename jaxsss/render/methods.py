@@ -30,6 +30,7 @@ import equinox as eqx
 import jax
 import numpy as np
 
+from jaxsss._config import render_jit
 from jaxsss.render.plan import ScenePlan
 from jaxsss.render.shading import image_stats
 
@@ -173,7 +174,7 @@ def _check_options(entry: RenderMethod, options: dict):
                          f"{', '.join(entry.options) or 'none'}")
 
 
-@eqx.filter_jit
+@render_jit
 def image_of(state, medium):
     """``state.image(medium)``, jitted (the state's arrays are arguments, so equal shapes compile once)."""
     return state.image(medium)

@@ -33,11 +33,11 @@ class ReflectingPoints(ShadedPoints):
 
     mirror: jax.Array | None = eqx.field(default=None, kw_only=True)
 
-    def radiance_from_exitance(self, medium: Medium, exitance, exit_nodes=None):
-        """The shared radiance (``exit_nodes``: a white BSSRDF kernel's, see
-        :meth:`~jaxsss.render.shading.ShadedPoints.radiance_from_exitance`) plus :func:`mirror_reflection` where the
-        state holds a mirror image."""
-        out = super().radiance_from_exitance(medium, exitance, exit_nodes)
+    def radiance_from_diffusion(self, medium: Medium, diffusion):
+        """The shared radiance (:meth:`~jaxsss.render.shading.ShadedPoints.radiance_from_diffusion`, which
+        :meth:`~jaxsss.render.shading.ShadedPoints.radiance_from_exitance` ends in) plus :func:`mirror_reflection`
+        where the state holds a mirror image."""
+        out = super().radiance_from_diffusion(medium, diffusion)
         if self.mirror is not None:
             out = out + mirror_reflection(medium, self.query_normal, self.to_eye, self.mirror)
         return out

@@ -234,7 +234,7 @@ def weighted_disc_integral(rho0, medium: Medium):
 
 
 def exitance_near(medium: Medium, query_pos, sample_pos, sample_area, sample_flux, near_query, near_sample, rho0,
-                  *, shared_channel=False, kernel=None, normals=None):
+                  *, shared_channel=False, kernel=None, normals=None, weights=None):
     """The near-field part of ``M_o`` (module docstring), ``(Q, C)`` (``(Q, K, C)`` for a kernel with incidence
     nodes, :class:`jaxsss.render.bssrdf.WhiteKernel`).
 
@@ -248,24 +248,34 @@ def exitance_near(medium: Medium, query_pos, sample_pos, sample_area, sample_flu
             sample flux may carry extra axes (``(N, K, C)``).
         normals: optional ``(query normals (Q, 3), sample normals (N, 3))``: the pairs' curvature for a kernel that
             corrects for it (:mod:`jaxsss.render.curvature`; the dipole ignores them).
+        weights: optional ``(Q, J, C)`` exit weights of a white kernel's nodes
+            (:func:`jaxsss.render.bssrdf.exit_weights`): the result is then the diffusion radiance ``(Q, C)``,
+            W/(mm^2 sr), each pair's nodes added as radiance (:meth:`jaxsss.render.bssrdf.WhiteKernel.pair`).
     """
     n_q = query_pos.shape[0]
     kernel = _kernel(medium, kernel, shared_channel)
-    delta = query_pos[jnp.minimum(near_query, n_q - 1)] - sample_pos[near_sample]
+    query = jnp.minimum(near_query, n_q - 1)
+    delta = query_pos[query] - sample_pos[near_sample]
 
     def seg(v):
         return jax.ops.segment_sum(v, near_query, num_segments=n_q + 1, indices_are_sorted=True)[:n_q]
 
-    pair_normals = None if normals is None else (normals[0][jnp.minimum(near_query, n_q - 1)], normals[1][near_sample])
+    pair_normals = None if normals is None else (normals[0][query], normals[1][near_sample])
+    extra = {} if weights is None else {"weights": weights[query]}
     point, w_flux, w_area = kernel.near_terms(delta, kernel.sources(sample_flux)[near_sample],
-                                              sample_area[near_sample], rho0, pair_normals)
+                                              sample_area[near_sample], rho0, pair_normals, **extra)
     area = seg(w_area)
     spread = seg(w_flux) / _per_pair(jnp.where(area > 0, area, 1.0), w_flux)
-    return kernel.disc(spread, rho0) + seg(point)
+    return _weighted(kernel.disc(spread, rho0), weights) + seg(point)
+
+
+def _weighted(exitance, weights):
+    """``(Q, J, C)`` node exitances as radiance ``(Q, C)`` by the exit ``weights`` (None: unchanged)."""
+    return exitance if weights is None else jnp.sum(exitance * weights, axis=1)
 
 
 def exitance_pairs(medium: Medium, query_pos, ent_pos, ent_flux, pair_query, pair_entity, *, shared_channel=False,
-                   kernel=None, normals=None):
+                   kernel=None, normals=None, weights=None):
     """Radiant exitance ``M_o`` (W/mm^2) at every query point, summed over an interaction list.
 
     ``M_o(x_q) = sum_{k: q_k = q} Phi_{e_k} R_d(|x_q - P_{e_k}|)`` (hierarchical paper Eq. 8 and 13, with the
@@ -281,21 +291,25 @@ def exitance_pairs(medium: Medium, query_pos, ent_pos, ent_flux, pair_query, pai
         shared_channel: evaluate the profile once for all channels (identical channel parameters).
         kernel: the profile (default the dipole of ``medium``; see :func:`exitance_near`).
         normals: optional ``(query normals (Q, 3), entity normals (E, 3))`` (see :func:`exitance_near`).
+        weights: optional ``(Q, J, C)`` exit weights of a white kernel (see :func:`exitance_near`): the result is
+            then radiance ``(Q, C)``.
 
     Returns:
-        ``(Q, C)`` (``(Q,) + kernel.value_shape``). The blocks are summed in a ``lax.scan`` whose body is rematerialised in reverse mode, so memory
-        stays at one block.
+        ``(Q, C)`` (``(Q,) + kernel.value_shape``). The blocks are summed in a ``lax.scan`` whose body is
+        rematerialised in reverse mode, so memory stays at one block.
     """
     n_q = query_pos.shape[0]
     kernel = _kernel(medium, kernel, shared_channel)
     sources = kernel.sources(ent_flux)
 
     def contrib(q, e):
+        extra = {} if weights is None else {"weights": weights[q]}
         # Hierarchical paper Eq. 13: each entity contributes Phi_v R_d(|x - P_v|).
         return kernel.pair(query_pos[q] - ent_pos[e], sources[e],
-                           None if normals is None else (normals[0][q], normals[1][e]))
+                           None if normals is None else (normals[0][q], normals[1][e]), **extra)
 
-    return scan_pairs(contrib, n_q, kernel.value_shape(ent_flux.shape), ent_flux.dtype, pair_query, pair_entity)
+    shape = kernel.value_shape(ent_flux.shape) if weights is None else kernel.value_shape(ent_flux.shape, True)
+    return scan_pairs(contrib, n_q, shape, ent_flux.dtype, pair_query, pair_entity)
 
 
 def scan_pairs(contrib, n_queries: int, value_shape: tuple, dtype, pair_query, pair_entity):
@@ -408,13 +422,13 @@ DIRECT_PAIRS = 1 << 18
 
 
 def exitance_direct(medium: Medium, query_pos, sample_pos, sample_flux, sample_area, rho0, *, block: int = 64,
-                    shared_channel=False, kernel=None, normals=None):
+                    shared_channel=False, kernel=None, normals=None, weights=None):
     """Brute-force ``M_o`` at every query point from every sample (the reference method), ``(Q, C)`` (``(Q,) +
     kernel.value_shape``), with the same
     near-field split (radius ``rho0``, mm; 0 for pure point sums) as the hierarchical method.
 
     Queries are processed in blocks of ``block`` against all ``N`` samples (memory ``block * N`` times the size of
-    one sample's flux). ``kernel`` and ``normals``: as in :func:`exitance_near`.
+    one sample's flux). ``kernel``, ``normals`` and ``weights``: as in :func:`exitance_near`.
     """
     n_q = query_pos.shape[0]
     # At most DIRECT_PAIRS (query, sample) pairs per block: a white kernel keeps a few dozen (P, K, C) arrays per
@@ -425,29 +439,33 @@ def exitance_direct(medium: Medium, query_pos, sample_pos, sample_flux, sample_a
     width = None if normals is None else normals[0].shape[1]  # 3, or 7 with the eye's chord (bssrdf.WhiteKernel)
     qn = None if normals is None else jnp.concatenate(
         [normals[0], jnp.broadcast_to(normals[0][:1], (pad, width))]).reshape(-1, block, width)
+    qw = None if weights is None else jnp.concatenate(
+        [weights, jnp.broadcast_to(weights[:1], (pad,) + weights.shape[1:])]).reshape((-1, block) + weights.shape[1:])
     kernel = _kernel(medium, kernel, shared_channel)
     n_s = sample_pos.shape[0]
     sources = kernel.sources(sample_flux)
 
     @jax.checkpoint
     def one(args):
-        q, n = args
+        q, n, w = args
         delta = (q[:, None, :] - sample_pos[None, :, :]).reshape(-1, 3)  # (block * N, 3)
         flux = jnp.broadcast_to(sources[None], (q.shape[0],) + sources.shape)
         area = jnp.broadcast_to(sample_area[None], (q.shape[0], n_s)).reshape(-1)
         pair_normals = None if n is None else (jnp.repeat(n, n_s, axis=0),
                                                jnp.tile(normals[1][:n_s], (q.shape[0], 1)))
+        extra = {} if w is None else {"weights": jnp.repeat(w, n_s, axis=0)}
         point, w_flux, w_area = kernel.near_terms(delta, flux.reshape((-1,) + sources.shape[1:]), area, rho0,
-                                                  pair_normals)
+                                                  pair_normals, **extra)
 
         def per_query(v):
             return jnp.sum(v.reshape((q.shape[0], n_s) + v.shape[1:]), axis=1)
 
         w_area = per_query(w_area)
         spread = per_query(w_flux) / _per_pair(jnp.where(w_area > 0, w_area, 1.0), per_query(w_flux))
-        return per_query(point) + kernel.disc(spread, rho0)
+        return per_query(point) + _weighted(kernel.disc(spread, rho0), w)
 
-    return jax.lax.map(one, (qp, qn)).reshape((-1,) + kernel.value_shape(sample_flux.shape))[:n_q]
+    shape = kernel.value_shape(sample_flux.shape) if weights is None else kernel.value_shape(sample_flux.shape, True)
+    return jax.lax.map(one, (qp, qn, qw)).reshape((-1,) + shape)[:n_q]
 
 
 def exit_radiance(medium: Medium, exitance, cos_o):

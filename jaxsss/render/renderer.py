@@ -19,10 +19,11 @@ import jax.numpy as jnp
 import numpy as np
 from tqdm import tqdm
 
+from jaxsss._config import render_jit
 from jaxsss.medium import Medium
 from jaxsss.render import radiance as rad
-from jaxsss.render.bssrdf import (albedo_correction, exit_model_for, incident_flux, shift_reach, surface_tangents,
-                                  white_kernel, white_tables)
+from jaxsss.render.bssrdf import (albedo_correction, exit_model_for, exit_weights, incident_flux, shift_reach,
+                                  surface_tangents, white_kernel, white_tables)
 from jaxsss.render.passage import PASSAGE_FLOOR, cut_matters, interaction_probability, truncated_travel, view_chords
 from jaxsss.render.camera import camera_frame
 from jaxsss.render.methods import Preparation, register_method
@@ -157,20 +158,43 @@ class Prepared(ReflectingPoints):
             return self.query_normal, self.ent_normal
         return jnp.concatenate([self.query_normal, self.view_chord], axis=1), self.ent_normal
 
-    def exitance(self, medium: Medium, blocks: slice | None = None):
-        """Radiant exitance ``M_o`` at the shaded points, ``(Q, C)`` W/mm^2 (``blocks``: part of the pair list)."""
+    def exitance(self, medium: Medium, blocks: slice | None = None, weights=None):
+        """Radiant exitance ``M_o`` at the shaded points, ``(Q, C)`` W/mm^2 (``(Q, J, C)`` per node row of a white
+        kernel; ``blocks``: part of the pair list). With exit ``weights`` ``(Q, J, C)`` (:meth:`exit_weights`), the
+        diffusion radiance ``(Q, C)`` W/(mm^2 sr) instead (:meth:`diffusion_radiance`)."""
         flux = self.sample_flux(medium)
         kernel = self.kernel(medium)
         if self.method == "direct":
             return rad.exitance_direct(medium, self.query_pos, self.sample_pos, flux, self.areas, self.rho0,
-                                       shared_channel=self.shared_channel, kernel=kernel, normals=self.normals)
+                                       shared_channel=self.shared_channel, kernel=kernel, normals=self.normals,
+                                       weights=weights)
         ent_flux = rad.entity_flux(flux, self.ent_start, self.ent_stop)
         pq, pe = self.pair_query, self.pair_entity
         if blocks is not None:
             pq, pe = pq[blocks], pe[blocks]
         far = rad.exitance_pairs(medium, self.query_pos, self.ent_pos, ent_flux, pq, pe,
-                                 shared_channel=self.shared_channel, kernel=kernel, normals=self.normals)
-        return far + self.exitance_near(medium, flux, kernel)
+                                 shared_channel=self.shared_channel, kernel=kernel, normals=self.normals,
+                                 weights=weights)
+        return far + self.exitance_near(medium, flux, kernel, weights)
+
+    def exit_weights(self, medium: Medium):
+        """``(Q, J, C)``: the radiance towards the eye per unit exitance of each node row of the white kernel at the
+        shaded points (:func:`jaxsss.render.bssrdf.exit_weights`), or None for the dipole."""
+        if self.exit_nodes is None:
+            return None
+        n_nodes = len(self.bssrdf_mus) * (2 if self.bssrdf_exit == "distance" else 1)
+        n_channels = jnp.broadcast_shapes(self.light_irradiance.shape[-1:], jnp.shape(medium.sigma_a)[-1:])[0]
+        return exit_weights(medium, self.cos_o, *self.exit_nodes, n_nodes, n_channels, self.exit_azimuth)
+
+    def diffusion_radiance(self, medium: Medium):
+        """The diffusion radiance towards the eye at the shaded points, ``(Q, C)`` W/(mm^2 sr). A white kernel's
+        sums add each pair's nodes as radiance by the shaded point's exit weights (:meth:`exit_weights`): the same
+        as :meth:`exitance` then :func:`jaxsss.render.bssrdf.exit_radiance_nodes`, with one value per pair instead of
+        ``J`` (skin1's image took 1.7x as long with the nodes kept apart, docs/benchmarks.md)."""
+        weights = self.exit_weights(medium)
+        if weights is None:
+            return rad.exit_radiance(medium, self.exitance(medium), self.cos_o)
+        return self.exitance(medium, weights=weights)
 
     def exitance_gradient(self, medium: Medium, *, near: bool = True):
         """Analytic gradient of ``M_o`` with respect to the shaded point's position, ``(Q, 3, C)`` W/mm^3 (caching
@@ -201,11 +225,12 @@ class Prepared(ReflectingPoints):
                 for j in range(3)]
         return jnp.stack(cols, axis=1)
 
-    def exitance_near(self, medium: Medium, flux, kernel=None):
-        """The near-field disc part of ``M_o`` (hierarchical method), ``(Q, C)``."""
+    def exitance_near(self, medium: Medium, flux, kernel=None, weights=None):
+        """The near-field disc part of ``M_o`` (hierarchical method), ``(Q, C)`` (radiance with exit ``weights``, as
+        :meth:`exitance`)."""
         return rad.exitance_near(medium, self.query_pos, self.sample_pos, self.areas, flux, self.near_query,
                                  self.near_sample, self.rho0, shared_channel=self.shared_channel, kernel=kernel,
-                                 normals=self.normals)
+                                 normals=self.normals, weights=weights)
 
     def image(self, medium: Medium):
         """The linear radiance image ``(H, W, C)`` as a JAX function of the medium (differentiable; jitted, with
@@ -371,10 +396,9 @@ def prepare(scene, *, method: str | None = None, eps: float | None = None, resol
 
 
 
-@eqx.filter_jit
+@render_jit
 def _image(prepared: Prepared, medium: Medium):
-    return prepared.image_from_radiance(prepared.radiance_from_exitance(medium, prepared.exitance(medium),
-                                                                        prepared.exit_nodes))
+    return prepared.image_from_radiance(prepared.radiance_from_diffusion(medium, prepared.diffusion_radiance(medium)))
 
 
 def _registered(method: str):

@@ -244,17 +244,27 @@ class ShadedPoints(eqx.Module):
     def n_queries(self) -> int:
         return self.query_pos.shape[0]
 
+    @property
+    def cos_o(self):
+        """``(Q,)``: the cosine between each shaded point's normal and the direction to the eye (clipped to [0, 1])."""
+        return jnp.clip(jnp.sum(self.query_normal * self.to_eye, axis=-1), 0.0, 1.0)
+
     def radiance_from_exitance(self, medium: Medium, exitance, exit_nodes=None):
         """Radiance towards the eye at the shaded points, ``(Q, C)`` W/(mm^2 sr): diffusion plus the optional
         single-scattering and specular terms.
 
         ``exitance`` is ``(Q, C)``, or ``(Q, K, C)`` per incidence node of a white kernel with ``exit_nodes = (mus,
         model)`` (:func:`jaxsss.render.bssrdf.exit_radiance_nodes`)."""
-        cos_o = jnp.clip(jnp.sum(self.query_normal * self.to_eye, axis=-1), 0.0, 1.0)
         if exit_nodes is None:
-            out = rad.exit_radiance(medium, exitance, cos_o)
+            out = rad.exit_radiance(medium, exitance, self.cos_o)
         else:
-            out = exit_radiance_nodes(medium, exitance, cos_o, *exit_nodes, azimuth=self.exit_azimuth)
+            out = exit_radiance_nodes(medium, exitance, self.cos_o, *exit_nodes, azimuth=self.exit_azimuth)
+        return self.radiance_from_diffusion(medium, out)
+
+    def radiance_from_diffusion(self, medium: Medium, diffusion):
+        """Radiance towards the eye at the shaded points, ``(Q, C)`` W/(mm^2 sr): the diffusion radiance
+        ``diffusion`` ``(Q, C)`` plus the optional single-scattering and specular terms."""
+        out = diffusion
         if self.single_scattering:
             out = out + rad.single_scattering(medium, self.query_normal, self.to_eye, self.query_to_light,
                                               self.query_irradiance)

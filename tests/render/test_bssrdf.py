@@ -430,6 +430,22 @@ def test_white_oblique_image_gradient_matches_finite_differences(monkeypatch):
 
 
 
+@pytest.mark.parametrize("method", ["hierarchical", "direct"])
+def test_the_sums_radiance_is_the_node_exitances_exit(method):
+    """Invariant: the image's diffusion radiance, summed pair by pair through the shaded points' exit weights
+    (:meth:`Prepared.diffusion_radiance`), is the node exitances (:meth:`Prepared.exitance`) leaving by
+    :func:`exit_radiance_nodes`: here with the exit by distance (eta 1, g 0: ``2K`` node rows)."""
+    scene = _scene({"sigma_a": [0.05, 0.1, 0.2], "sigma_s_prime": [1.1, 1.5, 2.0], "eta": 1.0})
+    prepared, plan, _ = prepare(scene, method=method, share_channels=False)
+    assert plan.bssrdf == "white-oblique" and prepared.bssrdf_exit == "distance"
+    medium = scene.material.medium
+    exitance = prepared.exitance(medium)
+    assert exitance.shape == (prepared.n_queries, 2 * len(prepared.bssrdf_mus), 3)
+    nodes = bssrdf.exit_radiance_nodes(medium, exitance, prepared.cos_o, *prepared.exit_nodes)
+    np.testing.assert_allclose(np.asarray(prepared.diffusion_radiance(medium)), np.asarray(nodes), rtol=1e-10,
+                               atol=1e-14 * float(np.max(np.abs(nodes))))
+
+
 def test_shift_reach_bounds_the_kernels_shift():
     """The reach is ``max SHIFT_RATIO(alpha') / (sigma_t' eta)`` over the channels and nodes (ketchup's red: albedo
     0.747, sigma_t' 0.241 per mm, about 3.75 mm at eta 1), smaller at a larger eta, and 0 for unshifted kernels."""

@@ -73,6 +73,40 @@ def test_split_kernel_keeps_the_exitance():
     np.testing.assert_allclose(wd2[:3], wd, rtol=1e-12)
 
 
+def test_weighted_pairs_are_the_nodes_exit():
+    """Invariant: a pair's radiance by the shaded point's exit weights (:meth:`WhiteKernel.pair` and
+    :meth:`WhiteKernel.near_terms` with ``weights``) is its node values times the weights, summed: the sums may add
+    the nodes per pair or per shaded point (with the split, the cut beam at both ends and the curvature)."""
+    from jaxsss.render.passage import PASSAGE_MUS
+
+    mus, sources = white_tables(0.0, 1.0, True)
+    assert tuple(mus) == PASSAGE_MUS
+    medium = Medium(sigma_a=jnp.array([0.015, 0.1]), sigma_s_prime=jnp.array([0.15, 1.0]), eta=1.0)
+    kernel = white_kernel(medium, sources, mus, shift=True, curvature=True, passage=1.5, exit_split=True)
+    rng = np.random.default_rng(1)
+    n = 11
+    delta = jnp.asarray(rng.normal(size=(n, 3)) * 4.0)
+    flux = jnp.asarray(np.concatenate([rng.uniform(0.1, 1.0, size=(n, 4, 3, 2)),
+                                       rng.uniform(0.0, 0.5, size=(n, 1, 3, 2)),
+                                       rng.uniform(0.0, 3.0, size=(n, 1, 3, 2))], axis=1))
+    normal = rng.normal(size=(n, 3))
+    normal /= np.linalg.norm(normal, axis=1, keepdims=True)
+    view = np.concatenate([rng.uniform(1.0, 20.0, size=(n, 1)), rng.normal(size=(n, 3)) * 0.3], axis=1)
+    normals = (jnp.asarray(np.concatenate([normal, view], axis=1)), jnp.asarray(normal[::-1].copy()))
+    weights = jnp.asarray(rng.uniform(0.0, 1.0, size=(n, 6, 2)))
+    sources_ = kernel.sources(flux)
+    nodes = np.asarray(kernel.pair(delta, sources_, normals))
+    assert nodes.shape == (n, 6, 2) and kernel.value_shape(flux.shape, True) == (2,)
+    np.testing.assert_allclose(np.asarray(kernel.pair(delta, sources_, normals, weights)),
+                               np.sum(nodes * np.asarray(weights), axis=1), rtol=1e-12)
+    area = jnp.asarray(rng.uniform(0.5, 1.0, size=n))
+    point, w_flux, w_area = kernel.near_terms(delta, sources_, area, 5.0, normals)
+    point_w, w_flux_w, _ = kernel.near_terms(delta, sources_, area, 5.0, normals, weights)
+    np.testing.assert_allclose(np.asarray(point_w), np.sum(np.asarray(point) * np.asarray(weights), axis=1),
+                               rtol=1e-12)
+    np.testing.assert_allclose(np.asarray(w_flux_w), np.asarray(w_flux), rtol=1e-12)
+
+
 def test_gradients_match_finite_differences():
     def f(p):
         x = exit_split_distribution(jnp.array([0.07, 0.4, 0.93]), (1.0, 0.1), p[:2])

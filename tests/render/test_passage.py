@@ -8,8 +8,8 @@ import pytest
 
 from jaxsss.render.meshes import builtin_mesh
 from jaxsss.render.passage import (PASSAGE_MUS, PASSAGE_TAU, PASSAGE_X, cut_beam_tallies, entry_chords,
-                                   interaction_probability, load_passage_table, passage_loss, passage_loss_table,
-                                   truncated_travel, view_chords)
+                                   interaction_probability, load_passage_table, passage_cells, passage_loss,
+                                   passage_loss_table, truncated_travel, view_chords)
 from jaxsss.render.rays import SceneGeometry
 from tests.gradcheck import assert_grad_matches_fd
 
@@ -168,7 +168,7 @@ def test_loss_table_against_an_independent_walk():
     # The table's half-planes, weighted by each half's share of the light.
     table = passage_loss_table(jnp.array([albedo]), (0.1,))
     x = jnp.asarray(np.array([0.75, 6.25, 8.75, 12.0]) / chord)[:, None, None]
-    halves = np.stack([1.0 - np.asarray(passage_loss(table, jnp.full((4, 1, 1), sigma_t * chord), x, a))[:, 0, 0]
+    halves = np.stack([1.0 - np.asarray(passage_loss(passage_cells(table), jnp.full((4, 1, 1), sigma_t * chord), x, a))[:, 0, 0]
                        for a in (0.0, 1.0)], axis=1)
     np.testing.assert_allclose((halves * half_full).sum(1) / half_full.sum(1), kept, atol=0.08)
 
@@ -176,7 +176,7 @@ def test_loss_table_against_an_independent_walk():
 def test_loss_table_shapes_and_bad_nodes():
     table = passage_loss_table(jnp.array([0.2, 0.75, 0.999]), (1.0, 0.5, 0.1))
     assert table.shape == (3, len(PASSAGE_TAU), len(PASSAGE_X), 2, 3)
-    out = passage_loss(table, jnp.full((5, 3, 3), 2.0), jnp.linspace(0.0, 4.0, 5)[:, None, None] * jnp.ones((5, 3, 3)),
+    out = passage_loss(passage_cells(table), jnp.full((5, 3, 3), 2.0), jnp.linspace(0.0, 4.0, 5)[:, None, None] * jnp.ones((5, 3, 3)),
                        jnp.full((5, 3, 3), 0.5))
     assert out.shape == (5, 3, 3)
     with pytest.raises(ValueError, match="mus"):
@@ -209,7 +209,7 @@ def test_loss_gradients_match_finite_differences():
     def f(p):
         table = passage_loss_table(p[:1], (1.0, 0.1))
         shape = (3, 2, 1)
-        return jnp.sum(passage_loss(table, jnp.full(shape, p[1]), jnp.full(shape, p[2]), jnp.full(shape, p[3])))
+        return jnp.sum(passage_loss(passage_cells(table), jnp.full(shape, p[1]), jnp.full(shape, p[2]), jnp.full(shape, p[3])))
 
     assert_grad_matches_fd(f, jnp.array([0.84, 1.3, 1.17, 0.6]))
 
