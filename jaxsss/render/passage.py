@@ -89,8 +89,8 @@ CUT_MIN_LOSS = 0.02
 """The cut beam (both ends) is kept for a scene when its plateau loss (``x = 3``) reaches this share of the light at
 either end, in any channel (:func:`cut_matters`): ketchup 9-10% and chicken1 10-11% in red keep it; skin1 (0.6%),
 the marble teapot (1.2%), potato (1.7% in blue), apple and the g = 0.9 and sky-lit spheres (under 0.5%) take the
-uniform ``1 - exp(-sigma_t t)``. Its lookups cost 3-4x the render's pairs (skin1 0.26 -> 1.2 s), and on those scenes
-they change mare_lit by under 0.002."""
+uniform ``1 - exp(-sigma_t t)``. Its lookups cost 2.5x the render's pairs (skin1's image 0.41 -> 1.01 s after the
+pass-2 speed-up of 2026-11-28; 0.26 -> 1.2 s before it), and on those scenes they change mare_lit by under 0.002."""
 PASSAGE_PHOTONS = 1_000_000
 PASSAGE_TABLE = Path(__file__).resolve().parent / "data" / "passage_loss.npz"
 _D_EDGES = np.concatenate([[0.0], np.geomspace(0.02, 60.0, 160)])
