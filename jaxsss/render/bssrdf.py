@@ -712,7 +712,7 @@ class WhiteKernel(eqx.Module):
         loss = passage_loss(table, tau, x, 0.5)  # (P, 3, C)
         # Linear in the refracted view cosine between the table's nodes.
         h = hat_weights(mu, PASSAGE_MUS)  # (P, 3)
-        return jax.lax.optimization_barrier(1.0 - jnp.sum(h[:, :, None] * loss, axis=1, keepdims=True))
+        return 1.0 - jnp.sum(h[:, :, None] * loss, axis=1, keepdims=True)
 
     def pair(self, delta, sources, normals=None, weights=None):
         """``(P, K, C)``: ``R_k(|delta - s_k|) F_k`` for offsets ``delta = x - P`` ``(P, 3)`` mm and the entities'
