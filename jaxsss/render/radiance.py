@@ -101,7 +101,11 @@ class DipoleKernel(eqx.Module):
         w = near_weight(r, rho0)
         return self.pair(delta, _per_pair(1.0 - w, flux) * flux), _per_pair(w, flux) * flux, w * area
 
-    def value_shape(self, flux_shape):
+    def value_shape(self, flux_shape, weighted: bool = False):
+        """One pair's value: the flux's trailing shape (``weighted``: the sums pass exit weights; the dipole takes
+        none, :meth:`jaxsss.render.bssrdf.WhiteKernel.value_shape`)."""
+        if weighted:
+            raise ValueError("DipoleKernel: exit weights are for the white kernels' nodes; the dipole sums exitance")
         return tuple(flux_shape[1:])
 
 
@@ -308,8 +312,8 @@ def exitance_pairs(medium: Medium, query_pos, ent_pos, ent_flux, pair_query, pai
         return kernel.pair(query_pos[q] - ent_pos[e], sources[e],
                            None if normals is None else (normals[0][q], normals[1][e]), **extra)
 
-    shape = kernel.value_shape(ent_flux.shape) if weights is None else kernel.value_shape(ent_flux.shape, True)
-    return scan_pairs(contrib, n_q, shape, ent_flux.dtype, pair_query, pair_entity)
+    return scan_pairs(contrib, n_q, kernel.value_shape(ent_flux.shape, weights is not None), ent_flux.dtype,
+                      pair_query, pair_entity)
 
 
 def scan_pairs(contrib, n_queries: int, value_shape: tuple, dtype, pair_query, pair_entity):
@@ -464,7 +468,7 @@ def exitance_direct(medium: Medium, query_pos, sample_pos, sample_flux, sample_a
         spread = per_query(w_flux) / _per_pair(jnp.where(w_area > 0, w_area, 1.0), per_query(w_flux))
         return per_query(point) + _weighted(kernel.disc(spread, rho0), w)
 
-    shape = kernel.value_shape(sample_flux.shape) if weights is None else kernel.value_shape(sample_flux.shape, True)
+    shape = kernel.value_shape(sample_flux.shape, weights is not None)
     return jax.lax.map(one, (qp, qn, qw)).reshape((-1,) + shape)[:n_q]
 
 
