@@ -19,7 +19,8 @@ version, seconds, and the reference's own noise). Against it:
 
 Error (``jaxsss.export.compare``): ``error`` = the largest over R, G, B of the mean absolute relative error over lit,
 fully covered pixels (``mare_lit``); rows also carry ``mare_lit``, ``mare_band`` (terminator band, |cos| <= 0.1),
-``bias_lit`` and ``sum_ratio`` per channel. A Mitsuba row's error includes the reference's own noise
+``bias_lit``, ``sum_ratio`` and ``mare_binned`` (the error of 4 x 4 pixel sums: the model's own error where the
+reference is noisy) per channel. A Mitsuba row's error includes the reference's own noise
 (``reference_noise_mare`` in the summary, about 1/sqrt(ref_spp / spp) of it).
 
 Outputs: ``render_vs_path_tracer.json`` / ``.png`` (error against seconds) and ``render_vs_path_tracer_maps.png``
@@ -291,7 +292,7 @@ def main(argv=None) -> int:
         return 0
     from benchmarks._harness import parse_args, write_results
     from jaxsss.export import mitsuba as xm
-    from jaxsss.export.compare import error_by_cos, error_map, pixel_geometry
+    from jaxsss.export.compare import BIN, error_by_cos, error_map, pixel_geometry
     from jaxsss.render import make_plan
 
     args = parse_args(argv, __doc__.splitlines()[0])
@@ -327,7 +328,7 @@ def main(argv=None) -> int:
 
     for r in rows:
         print(f"{r['method']:40s} {str(r['setting']):22s} mare_lit {rnd(r['mare_lit'])} "
-              f"band {rnd(r['mare_band'])} sum {rnd(r['sum_ratio'])} "
+              f"band {rnd(r['mare_band'])} sum {rnd(r['sum_ratio'])} {BIN}x{BIN} {rnd(r['mare_binned'])} "
               f"{r['seconds']:.2f} s (compile {r['compile_seconds'] or 0:.2f}"
               + (f", first call {r['first_call_seconds']:.2f} s)" if "first_call_seconds" in r else ")"))
     for name in SCENES:

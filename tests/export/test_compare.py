@@ -34,6 +34,21 @@ def test_known_errors(sphere):
     assert compare_images(np.where(edge[..., None], 5.0 * ref, ref), ref, px)["mare_lit"] == [0.0] * 3
 
 
+def test_binned_error_sees_a_smooth_bias_through_pixel_noise(sphere):
+    scene, px = sphere
+    rng = np.random.default_rng(1)
+    ref = np.where(px.hit[..., None], np.ones((64, 64, 3)), 0.0)
+    noisy = ref * (1.0 + 0.2 * rng.standard_normal(ref.shape))  # a reference with 20% noise per pixel
+    m = compare_images(1.05 * ref, noisy, px)
+    # Per pixel the noise dominates (its mean |.| is about 0.8 x 0.2 and more through 1 / ref); in 4 x 4 blocks it is
+    # 4 times smaller, so the 5% bias shows.
+    assert all(0.15 < e < 0.23 for e in m["mare_lit"])
+    assert all(0.04 < e < 0.08 for e in m["mare_binned"]), m["mare_binned"]
+    assert m["n_binned"][0] > 50 and 16 * m["n_binned"][0] <= m["n_lit"][0]
+    exact = compare_images(1.05 * ref, ref, px)
+    np.testing.assert_allclose(exact["mare_binned"], 0.05, rtol=1e-12)
+
+
 def test_lit_threshold_and_band(sphere):
     scene, px = sphere
     # Radiance = max(cos to the light, 0) + 0.005: dark side below 1% of the peak, so not lit.
