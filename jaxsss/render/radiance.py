@@ -87,16 +87,20 @@ class DipoleKernel(eqx.Module):
         """What the sums gather per entity: the flux itself."""
         return flux
 
-    def pair(self, delta, flux, normals=None):  # normals: the white kernels' curvature; the dipole stays flat
+    def pair(self, delta, flux, normals=None, weights=None):
+        """``R_d(|delta|) Phi``; ``normals`` (the white kernels' curvature) are ignored (the dipole stays flat) and exit
+        ``weights`` refused (:meth:`value_shape`)."""
+        _no_weights(weights)
         r = jnp.sqrt(jnp.maximum(jnp.sum(delta * delta, axis=-1), 1e-300))
         return _dipole(r[:, None], self.medium) * flux
 
     def disc(self, spread, rho0):
         return spread * weighted_disc_integral(rho0, self.medium)
 
-    def near_terms(self, delta, flux, area, rho0, normals=None):
+    def near_terms(self, delta, flux, area, rho0, normals=None, weights=None):
         """A near pair's ``(point, w Phi, w A)`` (module docstring's split): the point part ``(1 - w) R_d Phi`` and the
         weighted flux and area the disc averages."""
+        _no_weights(weights)
         r = jnp.sqrt(jnp.maximum(jnp.sum(delta * delta, axis=-1), 1e-300))
         w = near_weight(r, rho0)
         return self.pair(delta, _per_pair(1.0 - w, flux) * flux), _per_pair(w, flux) * flux, w * area
@@ -105,8 +109,16 @@ class DipoleKernel(eqx.Module):
         """One pair's value: the flux's trailing shape (``weighted``: the sums pass exit weights; the dipole takes
         none, :meth:`jaxsss.render.bssrdf.WhiteKernel.value_shape`)."""
         if weighted:
-            raise ValueError("DipoleKernel: exit weights are for the white kernels' nodes; the dipole sums exitance")
+            raise ValueError(_NO_WEIGHTS)
         return tuple(flux_shape[1:])
+
+
+_NO_WEIGHTS = "DipoleKernel: exit weights are for the white kernels' nodes; the dipole sums exitance"
+
+
+def _no_weights(weights) -> None:
+    if weights is not None:
+        raise ValueError(_NO_WEIGHTS)
 
 
 def _kernel(medium: Medium, kernel, shared_channel: bool):
@@ -265,9 +277,9 @@ def exitance_near(medium: Medium, query_pos, sample_pos, sample_area, sample_flu
         return jax.ops.segment_sum(v, near_query, num_segments=n_q + 1, indices_are_sorted=True)[:n_q]
 
     pair_normals = None if normals is None else (normals[0][query], normals[1][near_sample])
-    extra = {} if weights is None else {"weights": weights[query]}
     point, w_flux, w_area = kernel.near_terms(delta, kernel.sources(sample_flux)[near_sample],
-                                              sample_area[near_sample], rho0, pair_normals, **extra)
+                                              sample_area[near_sample], rho0, pair_normals,
+                                              None if weights is None else weights[query])
     area = seg(w_area)
     spread = seg(w_flux) / _per_pair(jnp.where(area > 0, area, 1.0), w_flux)
     return _weighted(kernel.disc(spread, rho0), weights) + seg(point)
@@ -307,10 +319,10 @@ def exitance_pairs(medium: Medium, query_pos, ent_pos, ent_flux, pair_query, pai
     sources = kernel.sources(ent_flux)
 
     def contrib(q, e):
-        extra = {} if weights is None else {"weights": weights[q]}
         # Hierarchical paper Eq. 13: each entity contributes Phi_v R_d(|x - P_v|).
         return kernel.pair(query_pos[q] - ent_pos[e], sources[e],
-                           None if normals is None else (normals[0][q], normals[1][e]), **extra)
+                           None if normals is None else (normals[0][q], normals[1][e]),
+                           None if weights is None else weights[q])
 
     return scan_pairs(contrib, n_q, kernel.value_shape(ent_flux.shape, weights is not None), ent_flux.dtype,
                       pair_query, pair_entity)
@@ -457,9 +469,8 @@ def exitance_direct(medium: Medium, query_pos, sample_pos, sample_flux, sample_a
         area = jnp.broadcast_to(sample_area[None], (q.shape[0], n_s)).reshape(-1)
         pair_normals = None if n is None else (jnp.repeat(n, n_s, axis=0),
                                                jnp.tile(normals[1][:n_s], (q.shape[0], 1)))
-        extra = {} if w is None else {"weights": jnp.repeat(w, n_s, axis=0)}
         point, w_flux, w_area = kernel.near_terms(delta, flux.reshape((-1,) + sources.shape[1:]), area, rho0,
-                                                  pair_normals, **extra)
+                                                  pair_normals, None if w is None else jnp.repeat(w, n_s, axis=0))
 
         def per_query(v):
             return jnp.sum(v.reshape((q.shape[0], n_s) + v.shape[1:]), axis=1)

@@ -190,6 +190,21 @@ def test_pairs_equal_direct_sum_and_shared_channel():
                                rad.exitance_pairs(grey, q, s, flux, pq, pe), rtol=1e-13)
 
 
+def test_the_dipole_refuses_exit_weights_by_name():
+    """Bad input: exit weights are the white kernels' (their nodes' exit distributions); the dipole's sums are
+    exitance, so every sum that would take them says so instead of ignoring them."""
+    q, s, flux, pq, pe = _random_problem()
+    medium = jaxsss.Medium(jnp.array([0.01, 0.05, 0.2]), jnp.array([1.0, 2.0, 3.0]), 1.0)
+    weights = jnp.ones((q.shape[0], 1, 3))
+    nq = jnp.asarray(np.repeat(np.arange(7), 40).astype(np.int32))
+    ns = jnp.asarray(np.tile(np.arange(40), 7).astype(np.int32))
+    for call in (lambda: rad.exitance_pairs(medium, q, s, flux, pq, pe, weights=weights),
+                 lambda: rad.exitance_near(medium, q, s, jnp.full(40, 0.5), flux, nq, ns, 1.0, weights=weights),
+                 lambda: rad.exitance_direct(medium, q, s, flux, jnp.ones(40), 1.0, block=4, weights=weights)):
+        with pytest.raises(ValueError, match="DipoleKernel: exit weights are for the white kernels"):
+            call()
+
+
 def test_exitance_gradient_matches_finite_differences():
     q, s, flux, pq, pe = _random_problem(n_q=3, n_s=20)
 
