@@ -29,8 +29,8 @@ import numpy as np
 from jaxsss.render.camera import camera_rays
 from jaxsss.render.rays import OBJECT_TRANSLUCENT, SceneGeometry
 
-__all__ = ["BAND_COS", "BIN", "COS_BINS", "LIT_FRACTION", "PixelGeometry", "compare_images", "error_by_cos", "error_map",
-           "jaxsss_coverage", "pixel_geometry", "pixel_light_cosines"]
+__all__ = ["BAND_COS", "BIN", "COS_BINS", "LIT_FRACTION", "PixelGeometry", "compare_images", "error_by_cos",
+           "error_map", "jaxsss_coverage", "pixel_geometry", "pixel_light_cosines"]
 
 BAND_COS = 0.1
 """The terminator band is ``|cos(normal, to light)| <= BAND_COS``."""
@@ -132,8 +132,9 @@ def compare_images(test: np.ndarray, ref: np.ndarray, pixels: PixelGeometry, *, 
 
     Returns:
         ``{"mare_lit", "mare_band", "sum_ratio", "bias_lit", "mare_binned", "n_lit", "n_band", "n_binned",
-        "n_covered"}``; the first five are lists of ``C`` floats (``mare_binned`` NaN where no block is all lit) (``bias_lit`` is the mean signed relative error ``(test - ref) / ref`` over lit pixels;
-        ``mare_band`` is NaN for a channel without band pixels).
+        "n_covered"}``; the first five are lists of ``C`` floats (``bias_lit`` is the mean signed relative error
+        ``(test - ref) / ref`` over lit pixels; ``mare_band`` is NaN for a channel without band pixels, ``mare_binned``
+        for one without a block of ``BIN x BIN`` lit pixels).
     """
     test, ref = np.asarray(test, dtype=np.float64), np.asarray(ref, dtype=np.float64)
     if test.shape != ref.shape or test.ndim != 3:

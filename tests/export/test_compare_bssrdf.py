@@ -1,17 +1,17 @@
 """jaxsss's default renderer against committed Mitsuba references (tests/export/references): tests that fail when the
 image error grows.
 
-The scenes: skin1 (Jensen 2001) on a 20 mm sphere at eta = 1 under one point light (8192 spp, 1.1-1.9% per-pixel
-noise) and under a spherical area light, and at eta 1.3 and 1.4 under a sky; marble on the watertight teapot at eta 1 (16384 spp); a g = 0.9 medium on
-the same sphere (8192 spp). Ketchup's sphere is
-tested in tests/render/test_passage.py. The default kernel is ``white-oblique`` (jaxsss.render.bssrdf) with the
-curvature ratio of the pairs (jaxsss.render.curvature), the uncollided passage and the chord-bounded shift
-(jaxsss.render.passage), and at a dielectric boundary the refracted Chandrasekhar exit. Goals of issue 17: mare_lit
-<= 5% per channel, <= 15% in the terminator band, summed radiance within 3%. Where a goal is met the test asserts the
-goal; where it is missed, the achieved level plus about 10% (the render is deterministic: the margin is for platform
-rounding and future table regeneration, not noise). Each test's docstring gives the achieved numbers and their
-history (docs/path_tracer.md has the measurements). The dipole plus single scattering (the old kernel) fails every
-bound on skin1: 0.138 / 0.181 / 0.225, band 0.28-0.38, sums 1.12-1.23.
+The scenes: skin1 (Jensen 2001) on a 20 mm sphere at eta = 1 under one point light (8192 spp, 1.1-1.9% per-pixel noise)
+and under a spherical area light, and at eta 1.3 and 1.4 under a sky; marble on the watertight teapot at eta 1 (16384
+spp); a g = 0.9 medium on the same sphere (24,576 spp). Ketchup's sphere is tested in tests/render/test_passage.py. The
+default kernel is ``white-oblique`` (jaxsss.render.bssrdf) with the curvature ratio of the pairs
+(jaxsss.render.curvature), the uncollided passage and the chord-bounded shift (jaxsss.render.passage), and at a
+dielectric boundary the refracted Chandrasekhar exit. Goals of issue 17: mare_lit <= 5% per channel, <= 15% in the
+terminator band, summed radiance within 3%. Where a goal is met the test asserts the goal; where it is missed, the
+achieved level plus about 10% (the render is deterministic: the margin is for platform rounding and future table
+regeneration, not noise). Each test's docstring gives the achieved numbers and their history (docs/path_tracer.md has
+the measurements). The dipole plus single scattering (the old kernel) fails every bound on skin1: 0.138 / 0.181 / 0.225,
+band 0.28-0.38, sums 1.12-1.23.
 """
 
 from pathlib import Path
@@ -83,7 +83,7 @@ def test_marble_teapot_against_its_path_traced_reference():
 
 def test_skin1_under_a_sphere_light_against_its_path_traced_reference():
     """skin1's sphere lit by a spherical area light (15 mm radius where the point light was, the same intensity; 6.8
-    degrees across, so the terminator is a penumbra) against an 8192-spp Mitsuba reference (93 s; its own noise 1.9 /
+    degrees in angular radius, so the terminator is a penumbra from cos -0.12 to 0.12) against an 8192-spp Mitsuba reference (93 s; its own noise 1.9 /
     1.1 / 1.4% per pixel). The renderer samples the light per irradiance sample and bins it by cosine
     (jaxsss.render.lights). Achieved (2026-11-28): mare_lit 0.041 / 0.036 / 0.037, terminator band 0.074 / 0.075 /
     0.092 (the penumbra +5 to +8% in every channel), sums 1.006 / 1.012 / 1.008 -- every goal met; the direct and
