@@ -330,7 +330,8 @@ def load_white_family(directory=None) -> WhiteFamily:
     appended as pathlength bins beyond ``L_MAX``."""
     key = str(FAMILY_DIR if directory is None else Path(directory))
     if key not in _FAMILIES:
-        _FAMILIES[key] = _build_family(Path(key))
+        with jax.ensure_compile_time_eval():  # host values even when first asked for inside a trace (jit, grad)
+            _FAMILIES[key] = _build_family(Path(key))
     return _FAMILIES[key]
 
 

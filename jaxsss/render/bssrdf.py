@@ -270,7 +270,8 @@ def white_tables(g: float, n: float, oblique: bool, mus: tuple | None = None) ->
     if not covers(g, n):
         return None
     obl = tuple(float(m) for m in (KERNEL_MUS if mus is None else mus)) if oblique else ()
-    return _white_tables(float(g), float(n), obl)
+    with jax.ensure_compile_time_eval():  # cached: concrete arrays even when first asked for inside a trace
+        return _white_tables(float(g), float(n), obl)
 
 
 @functools.lru_cache(maxsize=16)

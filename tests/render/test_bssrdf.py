@@ -159,6 +159,27 @@ def test_refracted_exit_gradients():
     assert_grad_matches_fd(f, np.array([0.6, 0.97, 1.35]), rtol=1e-5)
 
 
+def test_the_tables_are_host_arrays_even_when_first_asked_for_inside_a_trace():
+    """:func:`white_tables` is cached per process. Built for the first time inside ``jax.jit``, its arrays must still
+    be concrete: a cache holding the trace's values fails every later call (UnexpectedTracerError). (The family under
+    it, ``load_white_family``, is built the same way, under ``jax.ensure_compile_time_eval``; rebuilding it here would
+    cost 10 s.)"""
+    bssrdf._white_tables.cache_clear()
+    r = jnp.array([0.5, 2.0])
+
+    def profile(sigma_a):
+        mus, sources = white_tables(0.0, 1.0, True)
+        return white_kernel(jaxsss.Medium(sigma_a, jnp.array([0.74]), 1.0), sources, mus).profile(r)
+
+    try:
+        inside = jax.jit(profile)(jnp.array([0.032]))
+        np.testing.assert_allclose(profile(jnp.array([0.032])), inside, rtol=1e-12)
+        leaves = jax.tree_util.tree_leaves(white_tables(0.0, 1.0, True))
+        assert leaves and not any(isinstance(x, jax.core.Tracer) for x in leaves)
+    finally:
+        bssrdf._white_tables.cache_clear()
+
+
 def test_hat_weights_interpolate_linearly():
     mu = jnp.array([1.0, 0.9, 0.75, 0.3, 0.1, 0.05, 0.0])
     h = np.asarray(hat_weights(mu, MUS))
