@@ -117,7 +117,7 @@ def test_half_space_reflection_integrates_to_the_directional_albedo(albedo, rtol
 
 def test_half_space_reflection_gradient():
     assert_grad_matches_fd(lambda a: half_space_reflection(0.4, 0.9, a[0]) + half_space_reflection(1.0, 0.1, a[1]),
-                           jnp.array([0.5, 0.999]), rtol=1e-5)
+                           jnp.array([0.5, 0.999]), rtol=1e-5, jit=True)
 
 
 @pytest.mark.parametrize("albedo, eta", [(0.4, 1.3), (0.95, 1.3), (0.68, 1.4), (0.999, 1.55)])
@@ -156,7 +156,7 @@ def test_refracted_exit_gradients():
     def f(p):
         return jnp.sum(refracted_exit_distribution(mu_o, jnp.asarray(MUS), p[:2], p[2]) ** 2)
 
-    assert_grad_matches_fd(f, np.array([0.6, 0.97, 1.35]), rtol=1e-5)
+    assert_grad_matches_fd(f, np.array([0.6, 0.97, 1.35]), rtol=1e-5, jit=True)
 
 
 def test_the_tables_are_host_arrays_even_when_first_asked_for_inside_a_trace():
