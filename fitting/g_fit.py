@@ -30,6 +30,8 @@ import jax.numpy as jnp
 import numpy as np
 import optimistix as optx
 
+from jaxsss.validate import check_range, trusted_traces
+
 __all__ = ["FreeGFit", "G_R_MIN_LU", "G_STARTS", "G_STDERR_LIMIT", "G_SYSTEMATIC", "MODEL_REL_ERROR", "fit_free_g"]
 
 G_STARTS = (0.05, 0.5, 0.8, 0.9, 0.93)
@@ -146,6 +148,7 @@ def fit_free_g(r, R=None, *, R_stderr=None, eta: float, r_min: float | None = No
     r, R = np.asarray(r, dtype=np.float64), np.asarray(R, dtype=np.float64)
     if R.shape != r.shape or r.ndim != 1 or r.size < 4:
         raise ValueError(f"fit_free_g(r, R): need two 1-D arrays of the same length >= 4, got {r.shape}, {R.shape}")
+    check_range(r, "r", 0.0, None, owner="fit_free_g")  # on the host: the traced model is not checked (below)
     wf.check_covered(wf.G_NODES[0], eta, owner="fit_free_g")
     lo_default, hi_default = _default_range(r)
     r_min = lo_default if r_min is None else float(r_min)
@@ -171,11 +174,14 @@ def fit_free_g(r, R=None, *, R_stderr=None, eta: float, r_min: float | None = No
     thetas = jnp.asarray([[math.log(sa0), math.log(ssp0), z] for z in z0])
     family = wf.load_white_family()
     args = (jnp.asarray(r), jnp.asarray(np.where(keep, R, 0.0)), jnp.asarray(weight), float(eta), lo, hi, family)
-    values, costs, ok = _solve_all(thetas, args, max_steps)
-    values, costs, ok = np.asarray(values), np.asarray(costs), np.asarray(ok)
-    best = int(np.nanargmin(np.where(np.isfinite(costs), costs, np.inf)))
-    theta = values[best]
-    jac, res = (np.asarray(a) for a in _jacobian(jnp.asarray(theta), args))
+    # Inputs checked on the host, parameters valid by construction (exp, the sigmoid in g): no traced checks, so no
+    # host callbacks and the persistent cache stores the programs (they compiled for 20 s in every process).
+    with trusted_traces():
+        values, costs, ok = _solve_all(thetas, args, max_steps)
+        values, costs, ok = np.asarray(values), np.asarray(costs), np.asarray(ok)
+        best = int(np.nanargmin(np.where(np.isfinite(costs), costs, np.inf)))
+        theta = values[best]
+        jac, res = (np.asarray(a) for a in _jacobian(jnp.asarray(theta), args))
     m, p = int(keep.sum()), 3
     s2 = float(res @ res) / max(m - p, 1)
     cov_theta = (max(1.0, s2) if absolute else s2) * np.linalg.pinv(jac.T @ jac)

@@ -49,3 +49,5 @@ def test_bad_input_is_named(run):
         fit_free_g(data.r, data.R, R_stderr=np.zeros_like(data.R), eta=1.0)
     with pytest.raises(ValueError, match="fewer than 4"):
         fit_free_g(data, eta=1.0, r_min=100.0)
+    with pytest.raises(ValueError, match=r"fit_free_g\(r=-0.1\).*outside the allowed range \[0, inf\)"):
+        fit_free_g(np.concatenate([[-0.1], data.r[1:]]), data.R, eta=1.0)
