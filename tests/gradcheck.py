@@ -27,9 +27,10 @@ def central_difference(f, x, rel_step=1e-6):
 def assert_grad_matches_fd(f, x, *, rel_step=1e-6, rtol=1e-6, atol=0.0, jit=False):
     """Assert ``jax.grad(f)(x)`` (reverse mode) and ``jax.jvp`` (forward mode) match central differences.
 
-    ``jit=True`` compiles ``f``, its gradient and its JVP (three programs) instead of dispatching them op by op: it
-    pays for a large ``f`` evaluated many times (a white kernel: 10 s eager against 3 s), not for a small one (each
-    compilation costs more than the eager calls).
+    ``jit=True`` compiles ``f``, its gradient and its JVP (three programs) instead of dispatching them op by op. It
+    pays for a large ``f`` evaluated many times (the refracted exit distribution: 10 s op by op against 3 s), not for
+    a small one, nor for one that builds a large jitted program itself (the curved white kernel: 20 s against 39 s);
+    measured per test, docs/architecture.md ("The suite's time, 2026-11-28").
     """
     x = jnp.asarray(x, dtype=jnp.float64)
     grad = jax.jit(jax.grad(f)) if jit else jax.grad(f)
