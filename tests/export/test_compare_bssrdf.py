@@ -83,11 +83,12 @@ def test_marble_teapot_against_its_path_traced_reference():
 
 def test_skin1_under_a_sphere_light_against_its_path_traced_reference():
     """skin1's sphere lit by a spherical area light (15 mm radius where the point light was, the same intensity; 6.8
-    degrees in angular radius, so the terminator is a penumbra from cos -0.12 to 0.12) against an 8192-spp Mitsuba reference (93 s; its own noise 1.9 /
-    1.1 / 1.4% per pixel). The renderer samples the light per irradiance sample and bins it by cosine
-    (jaxsss.render.lights). Achieved (2026-11-28): mare_lit 0.041 / 0.036 / 0.037, terminator band 0.074 / 0.075 /
-    0.092 (the penumbra +5 to +8% in every channel), sums 1.006 / 1.012 / 1.008 -- every goal met; the direct and
-    cached methods the same within 0.006. Bounds: the goal per pixel, the band + 10%, the sums within 2%."""
+    degrees in angular radius, so the terminator is a penumbra from cos -0.12 to 0.12) against an 8192-spp Mitsuba
+    reference (93 s; its own noise 1.9 / 1.1 / 1.4% per pixel). The renderer samples the light per irradiance sample
+    and bins it by cosine (jaxsss.render.lights). Achieved (2026-11-28): mare_lit 0.041 / 0.036 / 0.037, terminator
+    band 0.074 / 0.075 / 0.092 (the penumbra +5 to +8% in every channel), sums 1.006 / 1.012 / 1.008 -- every goal
+    met; the direct and cached methods the same within 0.006. Bounds: the goal per pixel, the band + 10%, the sums
+    within 2%."""
     scene = load_scene(REFERENCES / "skin1_sphere_arealight.toml")
     data = np.load(REFERENCES / "skin1_sphere_arealight.npz")
     ref, coverage = data["image"].astype(np.float64), data["coverage"].astype(np.float64)
