@@ -28,6 +28,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from jaxsss._config import to_device
 from jaxsss.validate import check_integer
 from jaxsss.medium import Medium
 from jaxsss.photon.emit import emit_photons
@@ -249,21 +250,21 @@ def prepare_photon(scene, *, n_photons: int | None = None, eps: float | None = N
     timings["interactions"] = time.perf_counter() - t0
     tree = stree.octree
     n_q = len(shading.pos)
-    blocks = [(jnp.asarray(pair_blocks(q.astype(np.int32), n_q, block_pairs)),
-               jnp.asarray(pair_blocks(e.astype(np.int32), 0, block_pairs))) if len(q) else
+    blocks = [(to_device(pair_blocks(q.astype(np.int32), n_q, block_pairs)),
+               to_device(pair_blocks(e.astype(np.int32), 0, block_pairs))) if len(q) else
               (jnp.zeros((0, block_pairs), jnp.int32), jnp.zeros((0, block_pairs), jnp.int32))
               for q, e in zip(pairs.query, pairs.entity, strict=True)]
     order = tree.order
     prepared = PhotonPrepared(
         **shaded_fields(scene, base_plan, shading),
-        src_power=jnp.asarray(trace.sources.power[order]),
-        src_path=jnp.asarray(trace.sources.path[order]),
-        sigma_t_ref=jnp.asarray(trace.sigma_t_ref),
-        ent_pos=jnp.asarray(tree.centroid),
-        ent_normal=jnp.asarray(stree.normal),
-        ent_depth=jnp.asarray(stree.depth),
-        ent_start=jnp.asarray(tree.start),
-        ent_stop=jnp.asarray(tree.stop),
+        src_power=to_device(trace.sources.power[order]),
+        src_path=to_device(trace.sources.path[order]),
+        sigma_t_ref=to_device(trace.sigma_t_ref),
+        ent_pos=to_device(tree.centroid),
+        ent_normal=to_device(stree.normal),
+        ent_depth=to_device(stree.depth),
+        ent_start=to_device(tree.start),
+        ent_stop=to_device(tree.stop),
         pair_query=tuple(b[0] for b in blocks),
         pair_entity=tuple(b[1] for b in blocks),
         n_pairs=int(n_pairs),

@@ -57,7 +57,7 @@ import jax.numpy as jnp
 import numpy as np
 from scipy.spatial import cKDTree
 
-from jaxsss._config import render_jit
+from jaxsss._config import render_jit, to_device
 from jaxsss.fresnel import fresnel_reflectance
 from jaxsss.medium import Medium
 from jaxsss.reflectance import medium_total_diffuse_reflectance
@@ -397,8 +397,8 @@ def prepare_cached(scene, error_bound: float, *, eps: float | None = None, resol
     cache = assemble_prepared(scene, geo.plan, samples, tree, cache_shading, pairs, mirror=False)
     points = assemble_prepared(scene, geo.plan, samples, tree, shading, None)
     offset = shading.pos[placement.pair_point] - shading.pos[placement.cache_point[placement.pair_cache]]
-    cached = CachedPrepared(cache, points, jnp.asarray(placement.pair_point), jnp.asarray(placement.pair_cache),
-                            jnp.asarray(placement.pair_weight), jnp.asarray(offset), gradient)
+    cached = CachedPrepared(cache, points, to_device(placement.pair_point), to_device(placement.pair_cache),
+                            to_device(placement.pair_weight), to_device(offset), gradient)
     item = cache_plan_item(placement, shading.normal, shading.to_eye, error_bound)
     plan = geo.plan._replace(method="cached", items=geo.plan.items + (item,))
     n_points = len(shading.pos)

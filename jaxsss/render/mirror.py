@@ -20,6 +20,7 @@ import equinox as eqx
 import jax
 import numpy as np
 
+from jaxsss._config import to_device
 from jaxsss.medium import Medium
 from jaxsss.render.lights import EXTENDED_KINDS, light_channels
 from jaxsss.render.shading import ShadedPoints
@@ -47,8 +48,6 @@ def mirror_field(scene, shading, geometry=None):
     """``mirror`` for a :class:`ReflectingPoints` of ``shading`` (a :class:`~jaxsss.render.shading.ShadingPoints`):
     a JAX ``(Q, C)`` array when the scene has area or environment lights and a smooth boundary (no
     ``specular_roughness``), else ``None``. ``geometry`` shadows the mirror rays (built when ``None``)."""
-    import jax.numpy as jnp
-
     if scene.material.specular_roughness is not None or not any(
             light.kind in EXTENDED_KINDS for light in scene.lights):
         return None
@@ -56,7 +55,7 @@ def mirror_field(scene, shading, geometry=None):
         from jaxsss.render.rays import SceneGeometry
 
         geometry = SceneGeometry(scene.mesh, [o.mesh for o in scene.occluders])
-    return jnp.asarray(mirror_radiance(scene.lights, shading.pos, shading.normal, shading.to_eye, geometry))
+    return to_device(mirror_radiance(scene.lights, shading.pos, shading.normal, shading.to_eye, geometry))
 
 
 def mirror_radiance(lights: Sequence, points: np.ndarray, normals: np.ndarray, to_eye: np.ndarray,

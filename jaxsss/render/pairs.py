@@ -13,9 +13,9 @@ from __future__ import annotations
 import math
 from typing import Any, NamedTuple
 
-import jax.numpy as jnp
 import numpy as np
 
+from jaxsss._config import to_device
 from jaxsss.render.interactions import build_interactions
 
 __all__ = ["BLOCK_PAIRS", "MIN_BLOCK", "NEAR_RADIUS_IN_SAMPLES", "PairLists", "near_radius", "pair_blocks", "pair_info",
@@ -95,8 +95,8 @@ def pair_lists(tree, samples, q_pos, plan, *, progress: bool = False, block_pair
         return PairLists(None, None, None, None, rho0, np.full(len(q_pos), samples.n), 0)
     inter = build_interactions(tree, q_pos, plan.eps, r_cut=plan.r_cut, progress=progress)
     far, near_q, near_s, nodes_inside = split_near(inter, q_pos, tree, rho0 + near_margin)
-    pq = jnp.asarray(pair_blocks(inter.query[far].astype(np.int32), len(q_pos), block_pairs))
-    pe = jnp.asarray(pair_blocks(inter.entity[far].astype(np.int32), 0, block_pairs))
+    pq = to_device(pair_blocks(inter.query[far].astype(np.int32), len(q_pos), block_pairs))
+    pe = to_device(pair_blocks(inter.entity[far].astype(np.int32), 0, block_pairs))
     return PairLists(pq, pe, near_q, near_s, rho0, inter.counts(), nodes_inside)
 
 

@@ -169,7 +169,7 @@ def cut_matters(medium, samples, view=None) -> bool:
         tau = np.where(np.isfinite(chord), chord, 1e9)[:, None] * sigma_t_prime  # (M, C)
         loss = np.stack([np.stack([np.interp(tau[:, c], PASSAGE_TAU, nodes[k, :, c]) for c in range(n_c)], axis=-1)
                          for k in range(len(PASSAGE_MUS))], axis=1)  # (M, K, C)
-        return np.einsum("mk,mkc->mc", np.asarray(hat_weights(jnp.asarray(np.clip(cos, 0.0, 1.0)), PASSAGE_MUS)), loss)
+        return np.einsum("mk,mkc->mc", hat_weights(np.clip(cos, 0.0, 1.0), PASSAGE_MUS, xp=np), loss)
 
     lit = samples.light.cos > 0.0
     largest = 0.0

@@ -19,7 +19,7 @@ import jax.numpy as jnp
 import numpy as np
 from tqdm import tqdm
 
-from jaxsss._config import render_jit
+from jaxsss._config import render_jit, to_device
 from jaxsss.medium import Medium
 from jaxsss.render import radiance as rad
 from jaxsss.render.bssrdf import (albedo_correction, exit_model_for, exit_weights, incident_flux, shift_reach,
@@ -269,57 +269,54 @@ def assemble_prepared(scene, plan: ScenePlan, samples, tree, shading: ShadingPoi
     (``None``: no lists, for radiance and image assembly only). ``mirror``: add the mirror image of area and
     environment lights when the boundary is smooth (``geometry`` shadows it; built here when ``None``)."""
     reflect = mirror_field(scene, shading, geometry) if mirror else None
-    def opt(a):
-        return None if a is None else jnp.asarray(a)
-
     order = tree.order
     pairs = pairs or PairLists(None, None, None, None, near_radius(samples), np.zeros(0, int), 0)
     mus, tables, exit_model, tangent, ent_normal, view_chord = (1.0,), None, "fresnel", None, None, None
     passage_cut = False
     if plan.bssrdf != "dipole":
-        ent_normal = jnp.asarray(entity_normals(samples.normals[order] * samples.areas[order, None], tree))
+        ent_normal = to_device(entity_normals(samples.normals[order] * samples.areas[order, None], tree))
         medium = scene.material.medium
         mus, tables = white_tables(0.0 if medium.g is None else float(medium.g), float(medium.eta),
                                    oblique=plan.bssrdf == "white-oblique")
         exit_model = exit_model_for(medium)
         if plan.bssrdf == "white-oblique":
-            tangent = jnp.asarray(surface_tangents(samples.light.to_light[order], samples.normals[order],
+            tangent = to_device(surface_tangents(samples.light.to_light[order], samples.normals[order],
                                                    float(medium.eta)))
             view = None
             if mirror:  # camera rays (not the validation's free points, nor the cached method's cache points)
                 geometry = geometry or SceneGeometry(scene.mesh, [o.mesh for o in scene.occluders])
                 view = view_chords(geometry, shading, float(medium.eta))
             passage_cut = samples.chord is not None and cut_matters(medium, samples, view)
-            view_chord = jnp.asarray(view) if passage_cut and view is not None else None
+            view_chord = to_device(view) if passage_cut and view is not None else None
     return Prepared(
         **shaded_fields(scene, plan, shading),
-        sample_pos=jnp.asarray(samples.positions[order]),
-        areas=jnp.asarray(samples.areas[order]),
-        light_cos=jnp.asarray(samples.light.cos[order]),
-        light_irradiance=jnp.asarray(samples.light.irradiance[order]),
-        indirect=opt(None if samples.indirect is None else samples.indirect[order]),
-        texture=opt(None if samples.texture is None else samples.texture[order]),
-        ent_pos=jnp.asarray(tree.centroid),
-        ent_start=jnp.asarray(tree.start),
-        ent_stop=jnp.asarray(tree.stop),
+        sample_pos=to_device(samples.positions[order]),
+        areas=to_device(samples.areas[order]),
+        light_cos=to_device(samples.light.cos[order]),
+        light_irradiance=to_device(samples.light.irradiance[order]),
+        indirect=to_device(None if samples.indirect is None else samples.indirect[order]),
+        texture=to_device(None if samples.texture is None else samples.texture[order]),
+        ent_pos=to_device(tree.centroid),
+        ent_start=to_device(tree.start),
+        ent_stop=to_device(tree.stop),
         pair_query=pairs.far_query,
         pair_entity=pairs.far_entity,
-        near_query=opt(pairs.near_query),
-        near_sample=opt(pairs.near_sample),
-        rho0=jnp.asarray(pairs.rho0),
+        near_query=to_device(pairs.near_query),
+        near_sample=to_device(pairs.near_sample),
+        rho0=to_device(pairs.rho0),
         method=plan.method,
         shared_channel=plan.shared_channel,
         mirror=reflect,
         bssrdf_tables=tables,
         light_tangent=tangent,
-        light_chord=opt(None if samples.chord is None else samples.chord[order]),  # traced for white kernels only
+        light_chord=to_device(None if samples.chord is None else samples.chord[order]),  # traced for white kernels only
         ent_normal=ent_normal,
         view_chord=view_chord,
         passage_cut=passage_cut,
         bssrdf=plan.bssrdf,
         bssrdf_mus=tuple(mus),
         bssrdf_exit=exit_model,
-        self_indirect=opt(None if samples.self_indirect is None else samples.self_indirect[order]),
+        self_indirect=to_device(None if samples.self_indirect is None else samples.self_indirect[order]),
     )
 
 

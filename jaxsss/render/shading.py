@@ -26,6 +26,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from jaxsss._config import to_device
 from jaxsss.medium import Medium
 from jaxsss.render import radiance as rad
 from jaxsss.render.bssrdf import exit_model_for, exit_radiance_nodes
@@ -284,15 +285,15 @@ def shaded_fields(scene, plan, shading: ShadingPoints) -> dict[str, Any]:
     """The :class:`ShadedPoints` fields of ``shading`` as JAX arrays (keyword arguments for any method's state)."""
     light = shading.light
     return {
-        "query_pos": jnp.asarray(shading.pos),
-        "query_normal": jnp.asarray(shading.normal),
-        "to_eye": jnp.asarray(shading.to_eye),
-        "query_to_light": None if light is None else jnp.asarray(light.to_light),
-        "query_irradiance": None if light is None else jnp.asarray(light.irradiance),
-        "query_pixel": jnp.asarray(shading.pixel),
-        "query_weight": jnp.asarray(shading.weight),
+        "query_pos": to_device(shading.pos),
+        "query_normal": to_device(shading.normal),
+        "to_eye": to_device(shading.to_eye),
+        "query_to_light": None if light is None else to_device(light.to_light),
+        "query_irradiance": None if light is None else to_device(light.irradiance),
+        "query_pixel": to_device(shading.pixel),
+        "query_weight": to_device(shading.weight),
         "exit_azimuth": exit_azimuth(scene, plan, shading),
-        "constant": jnp.asarray(shading.constant),
+        "constant": to_device(shading.constant),
         "shape": shading.shape,
         "spp": shading.spp,
         "single_scattering": plan.single_scattering,
@@ -305,7 +306,7 @@ def exit_azimuth(scene, plan, shading: ShadingPoints):
     white kernel exits through the anisotropic model (``g > 0``, ``eta = 1``), else None."""
     if plan.bssrdf == "dipole" or exit_model_for(scene.material.medium) != "anisotropic":
         return None
-    return jnp.asarray(azimuth_harmonics(scene.lights, shading.pos, shading.normal, shading.to_eye))
+    return to_device(azimuth_harmonics(scene.lights, shading.pos, shading.normal, shading.to_eye))
 
 
 def image_stats(image: np.ndarray) -> dict[str, Any]:

@@ -187,6 +187,8 @@ def test_hat_weights_interpolate_linearly():
     # A linear function of mu is reproduced inside the nodes' range and held below the last node.
     np.testing.assert_allclose(h @ np.asarray(MUS), [1.0, 0.9, 0.75, 0.3, 0.1, 0.1, 0.1], rtol=1e-14)
     np.testing.assert_allclose(h[2], np.eye(5)[1], atol=1e-15)
+    # The host's NumPy form (the renderer's geometry) is the same function.
+    np.testing.assert_array_equal(hat_weights(np.asarray(mu), MUS, xp=np), h)
 
 
 def _skin(n_channels=3):
