@@ -38,7 +38,7 @@ import optimistix as optx
 
 from fitting._dipole_jac import dipole_value_and_jac
 from fitting.result import CHI2_P
-from fitting.models import entry_transmittance, model_profiles, resolve_model
+from fitting.models import model_profiles, resolve_model
 from fitting.solvers import resolve_solver
 
 # Candidate reduced albedos of the start, as 1 - alpha' = sigma_a / sigma_t': alpha' in factors of 2 from 1e-4 to

@@ -5,7 +5,6 @@ half-space and the committed 0.3 mm slab), ``benchmarks/mcml_fits.py`` every run
 """
 
 import json
-from pathlib import Path
 
 import numpy as np
 import pytest

@@ -167,6 +167,8 @@ def test_pairs_equal_direct_sum_and_shared_channel():
     medium = jaxsss.Medium(jnp.array([0.01, 0.05, 0.2]), jnp.array([1.0, 2.0, 3.0]), 1.3)
     a = rad.exitance_pairs(medium, q, s, flux, pq, pe)
     b = rad.exitance_direct(medium, q, s, flux, jnp.ones(40), 0.0, block=4)
+    assert a.shape == b.shape == (7, 3)
+    np.testing.assert_allclose(a, b, rtol=1e-12)  # every pair far (no near field): the pair sum is the direct sum
     # With a near field: pairs inside rho0 are split by w(r) between the spread (weighted-mean irradiance times I_w)
     # and the point sum.
     rho0 = 1.0
