@@ -281,7 +281,7 @@ def assemble_prepared(scene, plan: ScenePlan, samples, tree, shading: ShadingPoi
         exit_model = exit_model_for(medium)
         if plan.bssrdf == "white-oblique":
             tangent = to_device(surface_tangents(samples.light.to_light[order], samples.normals[order],
-                                                   float(medium.eta)))
+                                                 float(medium.eta)))
             view = None
             if mirror:  # camera rays (not the validation's free points, nor the cached method's cache points)
                 geometry = geometry or SceneGeometry(scene.mesh, [o.mesh for o in scene.occluders])

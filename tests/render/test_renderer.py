@@ -210,7 +210,7 @@ def test_light_bounced_off_the_object_itself_enters_with_its_diffuse_albedo():
 
 def test_prepare_compiles_nothing_for_a_new_resolution():
     """Geometry is host work: once a scene has been prepared, preparing it at another resolution (new shapes for
-    every array) runs no JAX compilation. Eager JAX compiles each operation, and ``jnp.asarray`` of each host array,
+    the shaded points, their pair lists and view chords) runs no JAX compilation. Eager JAX compiles each operation, and ``jnp.asarray`` of each host array,
     anew for every new shape (17-30 ms each): before ``jaxsss._config.to_device`` and the cut test's NumPy hat
     weights that was 0.6 of the skin1 sphere's 1.0 s of ``prepare`` at a new resolution."""
     import dataclasses
