@@ -402,25 +402,27 @@ def family_from_nodes(nodes: dict, g_nodes, n_nodes) -> WhiteFamily:
                        n_nodes=tuple(float(n) for n in n_nodes))
 
 
-def _hermite_weights(x, nodes):
+def _hermite_weights(x, nodes, xp=jnp):
     """Weights ``w`` (``x.shape + (K,)``) with ``sum_k w_k y_k`` the cubic Hermite interpolant of node values ``y_k``
-    at ``x``: centred-difference slopes at inner nodes, one-sided at the ends (C1, exact at the nodes, linear in y)."""
+    at ``x``: centred-difference slopes at inner nodes, one-sided at the ends (C1, exact at the nodes, linear in y).
+    ``xp``: the array module, ``jax.numpy`` (traced) or ``numpy`` (a concrete ``(g, n)`` on the host, where eager JAX
+    would compile each operation: 0.9 s of a process's first white-kernel render)."""
     xs = np.asarray(nodes, np.float64)
     K = xs.size
     if K == 1:  # a single node: its own values
-        return jnp.ones(jnp.shape(x) + (1,))
+        return xp.ones(xp.shape(x) + (1,))
     # Slopes m = S y.
     S = np.zeros((K, K))
     S[0, 0], S[0, 1] = -1.0 / (xs[1] - xs[0]), 1.0 / (xs[1] - xs[0])
     S[-1, -2], S[-1, -1] = -1.0 / (xs[-1] - xs[-2]), 1.0 / (xs[-1] - xs[-2])
     for k in range(1, K - 1):
         S[k, k - 1], S[k, k + 1] = -1.0 / (xs[k + 1] - xs[k - 1]), 1.0 / (xs[k + 1] - xs[k - 1])
-    xs_j, S_j = jnp.asarray(xs), jnp.asarray(S)
-    i = jnp.clip(jnp.searchsorted(xs_j, x, side="right") - 1, 0, K - 2)
+    xs_j, S_j = xp.asarray(xs), xp.asarray(S)
+    i = xp.clip(xp.searchsorted(xs_j, x, side="right") - 1, 0, K - 2)
     h = xs_j[i + 1] - xs_j[i]
     t = (x - xs_j[i]) / h
     t2, t3 = t * t, t * t * t
-    e = jnp.eye(K)
+    e = xp.eye(K)
     # Cubic Hermite basis: h00 y_i + h10 h m_i + h01 y_{i+1} + h11 h m_{i+1}.
     h00, h10, h01, h11 = 2 * t3 - 3 * t2 + 1, t3 - 2 * t2 + t, -2 * t3 + 3 * t2, t3 - t2
     return (h00[..., None] * e[i] + h01[..., None] * e[i + 1]
@@ -506,7 +508,7 @@ def _block(fam: WhiteFamily, g: float, n: float):
     compiled program, :func:`block_operands`; the kernels here, which ``filter_jit`` traces per structure)."""
     out = []
     for x, nodes in ((g, fam.g_nodes), (n, fam.n_nodes)):
-        w = np.asarray(_hermite_weights(jnp.asarray(x, jnp.float64), nodes))
+        w = _hermite_weights(np.float64(x), nodes, xp=np)
         k = min(STENCIL, len(nodes))
         i = int(np.clip(np.searchsorted(nodes, x, side="right") - 2, 0, len(nodes) - k))
         assert not np.any(np.delete(w, np.arange(i, i + k))), "Hermite support wider than the stencil"

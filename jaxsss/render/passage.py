@@ -158,8 +158,8 @@ def cut_matters(medium, samples, view=None) -> bool:
         return False
     n_c = samples.light.irradiance.shape[-1]
     sigma_t_prime = np.broadcast_to(np.asarray(medium.sigma_a + medium.sigma_s_prime, dtype=np.float64), (n_c,))
-    table = np.asarray(passage_loss_table(jnp.asarray(np.broadcast_to(np.asarray(medium.alpha_prime), (n_c,))),
-                                          PASSAGE_MUS))
+    table = passage_loss_table(np.broadcast_to(np.asarray(medium.alpha_prime, dtype=np.float64), (n_c,)), PASSAGE_MUS,
+                               xp=np)
     # The plateau (the last x node), azimuthal mean: (K, T, C), linear in tau between the nodes (NumPy: the eager
     # JAX lookup took 70 ms of the skin1 sphere's 0.5 s of geometry).
     nodes = table[:, :, -1].mean(axis=2)
@@ -297,30 +297,32 @@ def load_passage_table() -> dict:
         return {k: f[k] for k in f.files}
 
 
-def passage_loss_table(albedo, mus) -> jnp.ndarray:
+def passage_loss_table(albedo, mus, xp=jnp):
     """``(K, T, X, 2, C)``: the loss table (behind, ahead) at the kernel's incidence nodes ``mus`` (each one of
     :data:`PASSAGE_MUS`), interpolated linearly to the channels' similarity albedos ``albedo`` ``(C,)`` (held beyond
-    the ends; differentiable in ``albedo``)."""
+    the ends; differentiable in ``albedo``). ``xp``: the array module (``numpy`` for the host's test of whether the
+    cut matters, :func:`cut_matters`, where eager JAX compiled each operation: 0.45 s of a process's first render)."""
     tab = load_passage_table()
     missing = [m for m in mus if float(m) not in PASSAGE_MUS]
     if missing:
         raise ValueError(f"passage_loss_table: mus {missing} have no cut-beam table; the table has {PASSAGE_MUS}")
-    loss = jnp.asarray(tab["loss"][[PASSAGE_MUS.index(float(m)) for m in mus]])  # (K, A, T, X, 2)
-    i, t = node_interval(jnp.atleast_1d(albedo), PASSAGE_ALBEDO)
+    loss = xp.asarray(tab["loss"][[PASSAGE_MUS.index(float(m)) for m in mus]])  # (K, A, T, X, 2)
+    i, t = node_interval(xp.atleast_1d(albedo), PASSAGE_ALBEDO, xp)
     # Linear in the albedo between the table's nodes.
     w0, w1 = (1.0 - t)[None, :, None, None, None], t[None, :, None, None, None]
-    return jnp.moveaxis(loss[:, i] * w0 + loss[:, i + 1] * w1, 1, -1)
+    return xp.moveaxis(loss[:, i] * w0 + loss[:, i + 1] * w1, 1, -1)
 
 
-def node_interval(v, nodes):
+def node_interval(v, nodes, xp=jnp):
     """``(i, t)``: the interval index (int32) and fraction of ``v`` (any shape) among the sorted ``nodes`` (a tuple or
-    NumPy array: concrete), held beyond the ends: linear interpolation is ``(1 - t) f[i] + t f[i + 1]``."""
+    NumPy array: concrete), held beyond the ends: linear interpolation is ``(1 - t) f[i] + t f[i + 1]``. ``xp``: the
+    array module (``jax.numpy`` or ``numpy``)."""
     nodes = tuple(float(n) for n in np.asarray(nodes))
-    v = jnp.clip(v, nodes[0], nodes[-1])
+    v = xp.clip(v, nodes[0], nodes[-1])
     # The interval by counting the interior nodes at or below v: elementwise, so it fuses with its neighbours
     # (jnp.searchsorted's binary search took 12x as long on 6e5 values on the CPU).
-    i = jnp.zeros(jnp.shape(v), jnp.int32) + sum((v >= n).astype(jnp.int32) for n in nodes[1:-1])
-    lo, hi = jnp.asarray(nodes[:-1])[i], jnp.asarray(nodes[1:])[i]
+    i = xp.zeros(xp.shape(v), xp.int32) + sum((v >= n).astype(xp.int32) for n in nodes[1:-1])
+    lo, hi = xp.asarray(nodes[:-1])[i], xp.asarray(nodes[1:])[i]
     return i, (v - lo) / (hi - lo)
 
 

@@ -176,6 +176,9 @@ def test_loss_table_against_an_independent_walk():
 def test_loss_table_shapes_and_bad_nodes():
     table = passage_loss_table(jnp.array([0.2, 0.75, 0.999]), (1.0, 0.5, 0.1))
     assert table.shape == (3, len(PASSAGE_TAU), len(PASSAGE_X), 2, 3)
+    # The host's NumPy form (cut_matters) is the same table.
+    np.testing.assert_allclose(passage_loss_table(np.array([0.2, 0.75, 0.999]), (1.0, 0.5, 0.1), xp=np), table,
+                               rtol=1e-14, atol=1e-16)
     out = passage_loss(passage_cells(table), jnp.full((5, 3, 3), 2.0), jnp.linspace(0.0, 4.0, 5)[:, None, None] * jnp.ones((5, 3, 3)),
                        jnp.full((5, 3, 3), 0.5))
     assert out.shape == (5, 3, 3)
