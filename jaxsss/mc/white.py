@@ -312,13 +312,14 @@ def _node_values(log_bin_avg, table: WhiteTable):
     rq = (0.5 * (b - a) * _GL_X + 0.5 * (b + a)).reshape(-1)  # (M * 8,)
     wq = (rq.reshape(a.shape[0], -1) * _GL_W) / (0.5 * (b * b - a * a)) * (0.5 * (b - a))  # (M, 8), rows sum to 1
     xs = table.log_r_centres
-    ys = log_bin_avg
-    for _ in range(N_CORRECTIONS):
+
+    def correct(_, ys):
         # Ratios to the target average (no underflow where R itself is ~exp(-700)).
         logv = _log_eval(rq, xs, ys).reshape(ys.shape[:-1] + wq.shape)
         ratio = jnp.sum(jnp.exp(jnp.clip(logv - log_bin_avg[..., None], -50.0, 50.0)) * wq, axis=-1)
-        ys = ys - jnp.log(ratio)
-    return ys
+        return ys - jnp.log(ratio)
+
+    return jax.lax.fori_loop(0, N_CORRECTIONS, correct, log_bin_avg)
 
 
 @eqx.filter_jit
