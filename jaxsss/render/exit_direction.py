@@ -108,13 +108,11 @@ def load_exit_table() -> dict:
 
 
 def _hat(x, nodes):
-    """``(..., N)`` linear-interpolation weights of ``x`` over sorted ``nodes`` (held beyond the ends)."""
-    nodes = jnp.asarray(nodes)
-    xc = jnp.clip(x, nodes[0], nodes[-1])
-    i = jnp.clip(jnp.searchsorted(nodes, xc, side="right").astype(jnp.int32) - 1, 0, nodes.shape[0] - 2)
-    t = (xc - nodes[i]) / (nodes[i + 1] - nodes[i])
-    n = jnp.arange(nodes.shape[0], dtype=jnp.int32)
-    return jnp.where(n == i[..., None], 1.0 - t[..., None], 0.0) + jnp.where(n == i[..., None] + 1, t[..., None], 0.0)
+    """``(..., N)`` linear-interpolation weights of ``x`` over the ascending ``nodes`` (held beyond the ends):
+    :func:`jaxsss.render.bssrdf.hat_weights`, which takes descending nodes, over the reversed ones."""
+    from jaxsss.render.bssrdf import hat_weights  # bssrdf imports this module
+
+    return hat_weights(x, np.asarray(nodes)[::-1])[..., ::-1]
 
 
 def anisotropic_exit_distribution(mu_o, harmonics, mu_i, albedo, g):
