@@ -57,6 +57,7 @@ import optimistix as optx
 import jaxsss
 from jaxsss._config import compile_bound_options, render_jit
 from jaxsss.validate import trusted_traces
+from fitting._exported import exported_program
 from fitting.discrepancy import RENDER_MODEL_ERROR, ModelError, discrepancy_modes, light_key
 from fitting.result import CORRELATION_LIMIT
 from fitting.solvers import resolve_solver
@@ -210,7 +211,27 @@ def _residuals(theta, args):
 
 @render_jit
 def _solve(theta0, args, solver, max_steps):
-    return optx.least_squares(_residuals, solver, theta0, args=args, max_steps=max_steps, throw=False)
+    """The solve: ``(theta, status code, steps)`` (plain arrays, so that :mod:`jax.export` can keep it)."""
+    sol = optx.least_squares(_residuals, solver, theta0, args=args, max_steps=max_steps, throw=False)
+    return sol.value, sol.result._value, sol.stats["num_steps"]
+
+
+def _program(name: str, jitted, theta, args, static=()):
+    """``jitted(theta, args, *static)`` compiled for these shapes, as ``program(theta, args)``: through
+    :func:`fitting._exported.exported_program` (a new process skips tracing and lowering: 8-10 s of a warm first fit
+    on the white kernel), else lowered and compiled. The export's key is everything that is not an array: the
+    prepared views' static fields, eta, g, the Fresnel method, and ``static``."""
+    dyn, rest = eqx.partition((theta, args), eqx.is_array)
+    key = repr((str(jax.tree_util.tree_structure(rest)), jax.tree_util.tree_leaves(rest), static))
+
+    def pure(dyn):
+        return jitted(*eqx.combine(dyn, rest), *static)
+
+    program = exported_program(name, key, pure, (dyn,), compile_bound_options())
+    if program is None:
+        compiled = jitted.lower(theta, args, *static).compile(compile_bound_options())
+        return lambda theta, args: compiled(theta, args, *static) if static else compiled(theta, args)
+    return lambda theta, args: program(eqx.partition((theta, args), eqx.is_array)[0])
 
 
 def _grid_start(residuals, args, eta, n_channels):
@@ -489,8 +510,8 @@ def fit_image(scene, target_image, *, method: str = "hierarchical", max_pixels: 
     theta_shape = jnp.zeros(2 * n_channels)
     # Compile first (timed apart): the residuals (the start grid) and the solve.
     t0 = time.perf_counter()
-    residuals = _residuals.lower(theta_shape, args).compile(compile_bound_options())
-    compiled = _solve.lower(theta_shape, args, opt, max_steps).compile(compile_bound_options())
+    residuals = _program("image-residuals", _residuals, theta_shape, args)
+    solve = _program("image-solve", _solve, theta_shape, args, (opt, max_steps))
     seconds["compile"] = time.perf_counter() - t0
 
     t0 = time.perf_counter()
@@ -499,8 +520,9 @@ def fit_image(scene, target_image, *, method: str = "hierarchical", max_pixels: 
 
     theta0 = jnp.log(jnp.concatenate([jnp.asarray(sa0), jnp.asarray(ss0)]))
     t0 = time.perf_counter()
-    sol = compiled(theta0, args, opt, max_steps)
-    theta = jax.block_until_ready(sol.value)
+    theta, code, n_steps = solve(theta0, args)
+    theta = jax.block_until_ready(theta)
+    result = optx.RESULTS.successful.__class__(code, optx.RESULTS)
     seconds["solve"] = time.perf_counter() - t0
     res = residuals(theta, (tuple(relative), eta, g, fresnel))
     rms = jnp.sqrt(jnp.sum(res**2) / float(n_pixels * n_channels))
@@ -522,7 +544,7 @@ def fit_image(scene, target_image, *, method: str = "hierarchical", max_pixels: 
                                f"channel's coefficients by {coupling:.2g} of the largest derivative): the solve's "
                                "per-channel Jacobian was wrong, so the fit may have stopped early; please report it",)
     sa, ss = jnp.exp(theta[:c]), jnp.exp(theta[c:])
-    return ImageFit(sa, ss, jnp.asarray(sa0), jnp.asarray(ss0), sol.result, sol.stats["num_steps"], rms,
+    return ImageFit(sa, ss, jnp.asarray(sa0), jnp.asarray(ss0), result, n_steps, rms,
                     sa * se_log[:c], ss * se_log[c:], jnp.asarray(rd_ld[:c]), jnp.asarray(se_rd_ld[:c]),
                     jnp.asarray(rd_ld[c:]), jnp.asarray(se_rd_ld[c:]), jnp.asarray(corr), jnp.asarray(ok),
                     jnp.asarray(inflation), n_pixels, seconds, warnings, len(views))

@@ -19,7 +19,6 @@ with ``data <= 0`` are then left out).
 
 from __future__ import annotations
 
-import os
 import time
 import warnings
 from functools import lru_cache
@@ -33,6 +32,7 @@ from jaxsss._config import compile_bound_options
 from jaxsss.validate import trusted_traces
 from jaxsss.fresnel import resolve_fresnel_method
 from fitting import _kernel as K
+from fitting._exported import exported_program
 from fitting.io import ProfileData
 from fitting.models import MODEL_NOISE_LIMIT, ROUGH_RELATIVE_R_MIN_LD, resolve_model
 from fitting.result import CONDITION_LIMIT, CORRELATION_LIMIT, ProfileFit
@@ -266,85 +266,26 @@ def _run(stage, cfg, shard, r, *per_problem):
     return jax.tree_util.tree_map(lambda x: np.asarray(x)[:P_], out)  # drop the padding
 
 
-def _source_digest() -> str:
-    """A digest of the code a fit traces (jaxsss, fitting) and of the JAX version: an exported fit is reused only by
-    the code that made it."""
-    import hashlib
-    from pathlib import Path
-
-    h = hashlib.sha256(jax.__version__.encode())
-    for pkg in (Path(jaxsss.__file__).parent, Path(__file__).parent):
-        for f in sorted(pkg.rglob("*.py")):
-            h.update(f.read_bytes())
-    return h.hexdigest()[:16]
-
-
-@lru_cache(maxsize=None)
-def _export_dir():
-    from jaxsss._config import compilation_cache_dir
-
-    d = compilation_cache_dir()
-    if d is None:
-        return None
-    d = d / "exported" / _source_digest()
-    try:
-        d.mkdir(parents=True, exist_ok=True)
-    except OSError:
-        return None
-    return d
-
-
-_EXPORTED = {}
-
-
 def _exported_fit(cfg, r, ops, per_problem):
-    """The fused fit through :mod:`jax.export`: the traced and lowered program is serialised next to the compilation
-    cache (keyed by the configuration, the shapes and :func:`_source_digest`), so that a new process skips tracing
-    and lowering (~1 s of a warm first fit on this machine) and the compilation cache serves the rest. The status
-    leaves as its integer code (the exported output holds plain arrays) and becomes an ``optimistix.RESULTS`` again
-    here. Without a cache directory, the jitted function as before."""
-    import hashlib
-    import importlib.util
-
+    """The fused fit through :mod:`jax.export` (:func:`fitting._exported.exported_program`, keyed by the
+    configuration): a new process skips tracing and lowering (~1 s of a warm first fit on this machine) and the
+    compilation cache serves the rest. The status leaves as its integer code (the exported output holds plain arrays)
+    and becomes an ``optimistix.RESULTS`` again here. Without an export directory, or for a user's registered model
+    (the source digest covers jaxsss and fitting, not the model's own code), the jitted function as before."""
     import optimistix as optx
 
-    directory = _export_dir()
-    # Only the shipped models: the digest covers jaxsss and fitting, not a user's registered model's own code.
     own = resolve_model(cfg.model).evaluate.__module__.split(".")[0] in ("fitting", "jaxsss")
-    if directory is None or not own or importlib.util.find_spec("flatbuffers") is None:  # export needs flatbuffers
-        return _compiled("fit", cfg)(r, ops, *per_problem)
-    shapes = [(np.shape(x), str(np.asarray(x).dtype)) for x in (r, *ops, *per_problem)]
-    key = hashlib.sha256(repr((cfg, shapes)).encode()).hexdigest()[:24]
-    exp = _EXPORTED.get(key)
-    if exp is False:
-        return _compiled("fit", cfg)(r, ops, *per_problem)
-    if exp is None:
-        path = directory / f"fit-{key}.bin"
-        if path.exists():
-            try:
-                exp = jax.export.deserialize(bytearray(path.read_bytes()))
-            except Exception:  # a damaged or foreign file: export again
-                exp = None
-        if exp is None:
-            fn = _compiled("fit", cfg, False)
+    fn = _compiled("fit", cfg, False)
 
-            def plain(r, ops, *a):
-                out, *rest = fn(r, ops, *a)
-                return ({**out, "result": out["result"]._value}, *rest)
+    def plain(r, ops, *a):
+        out, *rest = fn(r, ops, *a)
+        return ({**out, "result": out["result"]._value}, *rest)
 
-            try:
-                exp = jax.export.export(jax.jit(plain))(r, ops, *per_problem)
-            except ValueError:  # e.g. a solver whose custom calls have no compatibility guarantee: not exportable
-                _EXPORTED[key] = False
-                return _compiled("fit", cfg)(r, ops, *per_problem)
-            try:
-                tmp = path.with_suffix(f".{os.getpid()}.tmp")
-                tmp.write_bytes(exp.serialize())
-                tmp.replace(path)
-            except OSError:
-                pass
-        exp = _EXPORTED[key] = jax.jit(exp.call, compiler_options=compile_bound_options())
-    out, *rest = exp(r, ops, *per_problem)
+    program = exported_program("fit", repr(cfg), plain, (r, ops, *per_problem), compile_bound_options()) if own \
+        else None
+    if program is None:
+        return _compiled("fit", cfg)(r, ops, *per_problem)
+    out, *rest = program(r, ops, *per_problem)
     out = {**out, "result": optx.RESULTS.successful.__class__(out["result"], optx.RESULTS)}
     return (out, *rest)
 

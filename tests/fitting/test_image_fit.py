@@ -258,3 +258,27 @@ def test_the_fits_medium_adds_no_host_callback():
     assert "callback" not in text
     with pytest.raises(ValueError, match="eta"):
         _medium(theta, -1.0, None, "poly")
+
+
+def test_a_new_process_loads_the_fits_programs_instead_of_tracing(two_views, monkeypatch, tmp_path):
+    """Start-up: fit_image's residual and solve programs are serialised with jax.export (fitting._exported); a new
+    process (here: the in-memory table cleared) loads them without tracing the render, and gives the same fit."""
+    from fitting import _exported, image_fit
+
+    monkeypatch.setattr(_exported, "export_dir", lambda: tmp_path)
+    monkeypatch.setattr(_exported, "_LOADED", {})
+    scenes, targets, stderrs = two_views
+    first = fit_image(scenes[1], targets[1], target_stderr=stderrs[1], max_pixels=64, bssrdf="dipole")
+    assert sorted(p.name.rsplit("-", 1)[0] for p in tmp_path.glob("*.bin")) == ["image-residuals", "image-solve"]
+    monkeypatch.setattr(_exported, "_LOADED", {})
+    traces = []
+    stacked = image_fit._stacked_residuals
+    monkeypatch.setattr(image_fit, "_stacked_residuals", lambda theta, args: traces.append(1) or stacked(theta, args))
+    again = fit_image(scenes[1], targets[1], target_stderr=stderrs[1], max_pixels=64, bssrdf="dipole")
+    assert not traces  # deserialised, not traced
+    assert again.converged and again.message == first.message and int(again.n_steps) == int(first.n_steps)
+    for name in ("sigma_a", "sigma_s_prime", "sigma_a_stderr", "sigma_s_prime_stderr"):
+        np.testing.assert_array_equal(getattr(again, name), getattr(first, name))
+    # Other solver settings are another program (they are in the key), not the stored one.
+    fit_image(scenes[1], targets[1], target_stderr=stderrs[1], max_pixels=64, bssrdf="dipole", rtol=1e-5)
+    assert len(list(tmp_path.glob("image-solve-*.bin"))) == 2

@@ -200,14 +200,14 @@ def test_large_batches_in_chunks_equal_one_call(monkeypatch):
 def test_exported_fit_is_written_and_reused(monkeypatch, tmp_path):
     """Start-up: the fused fit is serialised with jax.export; a new process (here: the in-memory table cleared) loads
     it instead of tracing, and gives the same fit, status included."""
-    from fitting import profile_fit
+    from fitting import _exported
 
-    monkeypatch.setattr(profile_fit, "_export_dir", lambda: tmp_path)
-    monkeypatch.setattr(profile_fit, "_EXPORTED", {})
+    monkeypatch.setattr(_exported, "export_dir", lambda: tmp_path)
+    monkeypatch.setattr(_exported, "_LOADED", {})
     first = fitting.fit_profile(R_GRID, dipole_data(), eta=ETA)
     files = list(tmp_path.glob("fit-*.bin"))
     assert len(files) == 1
-    monkeypatch.setattr(profile_fit, "_EXPORTED", {})
+    monkeypatch.setattr(_exported, "_LOADED", {})
     before = dict(_kernel.TRACES)
     again = fitting.fit_profile(R_GRID, dipole_data(), eta=ETA)
     assert _kernel.TRACES == before  # deserialised, not traced
