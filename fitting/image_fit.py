@@ -57,7 +57,7 @@ import optimistix as optx
 import jaxsss
 from jaxsss._config import compile_bound_options, render_jit
 from jaxsss.validate import trusted_traces
-from fitting._exported import exported_program
+from jaxsss._exported import compiled_program
 from fitting.discrepancy import RENDER_MODEL_ERROR, ModelError, discrepancy_modes, light_key
 from fitting.result import CORRELATION_LIMIT
 from fitting.solvers import resolve_solver
@@ -214,24 +214,6 @@ def _solve(theta0, args, solver, max_steps):
     """The solve: ``(theta, status code, steps)`` (plain arrays, so that :mod:`jax.export` can keep it)."""
     sol = optx.least_squares(_residuals, solver, theta0, args=args, max_steps=max_steps, throw=False)
     return sol.value, sol.result._value, sol.stats["num_steps"]
-
-
-def _program(name: str, jitted, theta, args, static=()):
-    """``jitted(theta, args, *static)`` compiled for these shapes, as ``program(theta, args)``: through
-    :func:`fitting._exported.exported_program` (a new process skips tracing and lowering: 8-10 s of a warm first fit
-    on the white kernel), else lowered and compiled. The export's key is everything that is not an array: the
-    prepared views' static fields, eta, g, the Fresnel method, and ``static``."""
-    dyn, rest = eqx.partition((theta, args), eqx.is_array)
-    key = repr((str(jax.tree_util.tree_structure(rest)), jax.tree_util.tree_leaves(rest), static))
-
-    def pure(dyn):
-        return jitted(*eqx.combine(dyn, rest), *static)
-
-    program = exported_program(name, key, pure, (dyn,), compile_bound_options())
-    if program is None:
-        compiled = jitted.lower(theta, args, *static).compile(compile_bound_options())
-        return lambda theta, args: compiled(theta, args, *static) if static else compiled(theta, args)
-    return lambda theta, args: program(eqx.partition((theta, args), eqx.is_array)[0])
 
 
 def _grid_start(residuals, args, eta, n_channels):
@@ -510,8 +492,11 @@ def fit_image(scene, target_image, *, method: str = "hierarchical", max_pixels: 
     theta_shape = jnp.zeros(2 * n_channels)
     # Compile first (timed apart): the residuals (the start grid) and the solve.
     t0 = time.perf_counter()
-    residuals = _program("image-residuals", _residuals, theta_shape, args)
-    solve = _program("image-solve", _solve, theta_shape, args, (opt, max_steps))
+    # From disk where they were exported before (jaxsss._exported: a new process skips tracing and lowering, 8-10 s
+    # of a warm first fit on the white kernel); the key holds the views' static fields, eta, g, Fresnel, the solver.
+    residuals = compiled_program("image-residuals", _residuals, (theta_shape, args),
+                                 compiler_options=compile_bound_options())
+    solve = compiled_program("image-solve", _solve, (theta_shape, args), (opt, max_steps), compile_bound_options())
     seconds["compile"] = time.perf_counter() - t0
 
     t0 = time.perf_counter()

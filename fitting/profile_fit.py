@@ -32,7 +32,7 @@ from jaxsss._config import compile_bound_options
 from jaxsss.validate import trusted_traces
 from jaxsss.fresnel import resolve_fresnel_method
 from fitting import _kernel as K
-from fitting._exported import exported_program
+from jaxsss._exported import exported_program
 from fitting.io import ProfileData
 from fitting.models import MODEL_NOISE_LIMIT, ROUGH_RELATIVE_R_MIN_LD, resolve_model
 from fitting.result import CONDITION_LIMIT, CORRELATION_LIMIT, ProfileFit
@@ -267,7 +267,7 @@ def _run(stage, cfg, shard, r, *per_problem):
 
 
 def _exported_fit(cfg, r, ops, per_problem):
-    """The fused fit through :mod:`jax.export` (:func:`fitting._exported.exported_program`, keyed by the
+    """The fused fit through :mod:`jax.export` (:func:`jaxsss._exported.exported_program`, keyed by the
     configuration): a new process skips tracing and lowering (~1 s of a warm first fit on this machine) and the
     compilation cache serves the rest. The status leaves as its integer code (the exported output holds plain arrays)
     and becomes an ``optimistix.RESULTS`` again here. Without an export directory, or for a user's registered model

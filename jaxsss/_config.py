@@ -92,6 +92,7 @@ def render_jit(fun):
             return plain(*args, **kwargs)
 
     call.lower = tuned.lower
+    call.compiler_options = RENDER_COMPILER_OPTIONS  # (for jaxsss._exported.compiled_program)
     return call
 
 

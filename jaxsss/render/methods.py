@@ -30,6 +30,7 @@ import jax
 import numpy as np
 
 from jaxsss._config import render_jit
+from jaxsss._exported import compiled_program
 from jaxsss.render.plan import ScenePlan
 from jaxsss.render.shading import image_stats
 
@@ -242,7 +243,8 @@ def render(scene, method: str | None = None, *, resolution=None, pixel_mask=None
     medium = entry.params(scene) if medium is None else medium
     timings = dict(prepared.timings)
     t0 = time.perf_counter()
-    compiled = image_of.lower(prepared.state, medium).compile()
+    # From disk where it was exported before (jaxsss._exported): a new process skips tracing and lowering.
+    compiled = compiled_program("render", image_of, (prepared.state, medium))
     timings["pass2_compile"] = time.perf_counter() - t0
     t0 = time.perf_counter()
     image = np.asarray(jax.block_until_ready(compiled(prepared.state, medium)))

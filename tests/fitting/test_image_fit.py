@@ -261,9 +261,10 @@ def test_the_fits_medium_adds_no_host_callback():
 
 
 def test_a_new_process_loads_the_fits_programs_instead_of_tracing(two_views, monkeypatch, tmp_path):
-    """Start-up: fit_image's residual and solve programs are serialised with jax.export (fitting._exported); a new
+    """Start-up: fit_image's residual and solve programs are serialised with jax.export (jaxsss._exported); a new
     process (here: the in-memory table cleared) loads them without tracing the render, and gives the same fit."""
-    from fitting import _exported, image_fit
+    from fitting import image_fit
+    from jaxsss import _exported
 
     monkeypatch.setattr(_exported, "export_dir", lambda: tmp_path)
     monkeypatch.setattr(_exported, "_LOADED", {})

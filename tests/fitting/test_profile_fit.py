@@ -200,7 +200,7 @@ def test_large_batches_in_chunks_equal_one_call(monkeypatch):
 def test_exported_fit_is_written_and_reused(monkeypatch, tmp_path):
     """Start-up: the fused fit is serialised with jax.export; a new process (here: the in-memory table cleared) loads
     it instead of tracing, and gives the same fit, status included."""
-    from fitting import _exported
+    from jaxsss import _exported
 
     monkeypatch.setattr(_exported, "export_dir", lambda: tmp_path)
     monkeypatch.setattr(_exported, "_LOADED", {})

@@ -173,3 +173,34 @@ def test_every_method_explains_itself_on_the_command_line(capsys, tmp_path):
         assert code == 0, (method, err)
         plan = json.loads(out.read_text())["plan"]
         assert plan["method"] == method and plan["items"] and f"({method})" in stdout
+
+
+def test_a_new_process_loads_the_render_program_instead_of_tracing(monkeypatch, tmp_path):
+    """Start-up: render() serialises the image program with jax.export (jaxsss._exported); a new process (here: the
+    in-memory table and JAX's caches cleared) loads it without tracing the image, and renders the same image as the
+    jitted program."""
+    from jaxsss import _exported
+
+    scene = _scene("marble_teapot.toml", **OLD)
+    monkeypatch.setattr(_exported, "export_dir", lambda: None)
+    plain = render(scene, "hierarchical", resolution=RES, bssrdf="dipole").image
+    monkeypatch.setattr(_exported, "export_dir", lambda: tmp_path)
+    monkeypatch.setattr(_exported, "_LOADED", {})
+    first = render(scene, "hierarchical", resolution=RES, bssrdf="dipole").image
+    assert len(list(tmp_path.glob("render-*.bin"))) == 1
+    monkeypatch.setattr(_exported, "_LOADED", {})
+    jax.clear_caches()
+    traced = []
+
+    def listen(event, duration, **kw):
+        if event.endswith("jaxpr_trace_duration"):
+            traced.append(kw.get("fun_name"))
+
+    jax.monitoring.register_event_duration_secs_listener(listen)
+    try:
+        again = render(scene, "hierarchical", resolution=RES, bssrdf="dipole").image
+    finally:
+        jax.monitoring.unregister_event_duration_listener(listen)
+    assert "image_of" not in traced and "_image" not in traced, traced
+    np.testing.assert_allclose(first, plain, rtol=1e-12, atol=0.0)
+    np.testing.assert_array_equal(again, first)

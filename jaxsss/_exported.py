@@ -27,9 +27,7 @@ from pathlib import Path
 import jax
 import numpy as np
 
-import jaxsss
-
-__all__ = ["export_dir", "exported_program", "source_digest"]
+__all__ = ["compiled_program", "export_dir", "exported_program", "source_digest"]
 
 DIGEST_SUFFIXES = (".py", ".npz", ".csv", ".txt", ".json")
 """The files of ``jaxsss`` and ``fitting`` that a trace can read: code and the shipped tables."""
@@ -44,6 +42,16 @@ _LOADED: dict = {}
 """Full key -> the compiled program, or False (not exportable: the caller compiles as before)."""
 
 
+def _package_dirs() -> list[Path]:
+    """The directories of ``jaxsss`` and ``fitting`` (found, not imported: jaxsss does not depend on fitting)."""
+    dirs = []
+    for name in ("jaxsss", "fitting"):
+        spec = importlib.util.find_spec(name)
+        if spec is not None and spec.submodule_search_locations:
+            dirs.extend(Path(p) for p in spec.submodule_search_locations)
+    return dirs
+
+
 def source_digest() -> str:
     """A digest of what a trace can depend on beyond its arguments: the code and data files of ``jaxsss`` and
     ``fitting`` and the versions of :data:`TRACING_LIBRARIES`. An exported program is reused only by the code, tables
@@ -54,7 +62,7 @@ def source_digest() -> str:
             h.update(f"{name}=={importlib.metadata.version(name)};".encode())
         except importlib.metadata.PackageNotFoundError:
             h.update(f"{name} absent;".encode())
-    for pkg in (Path(jaxsss.__file__).parent, Path(__file__).parent):
+    for pkg in _package_dirs():
         for f in sorted(p for p in pkg.rglob("*") if p.suffix in DIGEST_SUFFIXES and "__pycache__" not in p.parts):
             h.update(str(f.relative_to(pkg)).encode())
             h.update(f.read_bytes())
@@ -141,3 +149,30 @@ def _load_or_export(path: Path, fun, treedef, leaves, compiler_options):
         except OSError:
             pass
     return jax.jit(exp.call).lower(*leaves).compile(compiler_options)
+
+
+def compiled_program(name: str, jitted, args: tuple, static: tuple = (), compiler_options=None):
+    """``jitted(*args, *static)`` compiled for ``args``' shapes, called as ``program(*args)``: through
+    :func:`exported_program` where it can be (a new process skips tracing and lowering), else lowered and compiled.
+
+    ``jitted`` is a module-level jitted function (``eqx.filter_jit``, :func:`jaxsss._config.render_jit`) that reads
+    nothing but its arguments, the package's code and its data files. The export's key is everything in ``args``
+    that is not an array (the static fields of modules, Python scalars and strings) and ``static``; a key that shows
+    an object's address (`` at 0x``) is refused, since it would differ in every process. ``compiler_options`` are
+    added to the jitted function's own (``jitted.compiler_options``, as :func:`~jaxsss._config.render_jit` sets),
+    as ``Lowered.compile`` adds them."""
+    import equinox as eqx
+
+    dyn, rest = eqx.partition(args, eqx.is_array)
+    key = repr((getattr(jitted, "__qualname__", repr(jitted)), str(jax.tree_util.tree_structure(rest)),
+                jax.tree_util.tree_leaves(rest), static))
+
+    def pure(dyn):
+        return jitted(*eqx.combine(dyn, rest), *static)
+
+    options = {**(getattr(jitted, "compiler_options", None) or {}), **(compiler_options or {})} or None
+    program = None if " at 0x" in key else exported_program(name, key, pure, (dyn,), options)
+    if program is None:
+        compiled = jitted.lower(*args, *static).compile(compiler_options)
+        return (lambda *a: compiled(*a, *static)) if static else compiled
+    return lambda *a: program(eqx.partition(a, eqx.is_array)[0])
