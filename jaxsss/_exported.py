@@ -1,9 +1,10 @@
-"""Traced programs kept on disk (:mod:`jax.export`), so that a new process skips tracing and lowering a fit.
+"""Traced programs kept on disk (:mod:`jax.export`), so that a new process skips tracing and lowering a fit or a
+render.
 
 JAX's persistent compilation cache stores compiled programs, but every process still traces and lowers each jitted
 function before it can look one up: for an image fit on the white kernel that is 8-10 s of a warm first fit (the
-solve's trace alone 6 s), paid again by every notebook restart. :func:`exported_program` serialises the traced and
-lowered program next to the compilation cache, keyed by
+solve's trace alone 6 s), for a white-kernel render about 2 s, paid again by every notebook restart.
+:func:`exported_program` serialises the traced and lowered program next to the compilation cache, keyed by
 
 - the caller's description of everything the trace baked in (its configuration, its static arguments),
 - the arguments' tree structure, shapes and dtypes,
@@ -12,7 +13,8 @@ lowered program next to the compilation cache, keyed by
 
 and the compilation cache then serves the compiled program. A key's file that cannot be read is exported again; for a
 function that cannot be exported (custom calls without a compatibility guarantee) :func:`exported_program` returns
-None for the rest of the process and the caller compiles as before. Without a cache directory (``JAXSSS_COMPILATION_CACHE=off``) nothing is written.
+None for the rest of the process and the caller compiles as before. Without a cache directory
+(``JAXSSS_COMPILATION_CACHE=off``) nothing is written.
 """
 
 from __future__ import annotations
