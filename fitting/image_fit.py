@@ -56,8 +56,8 @@ import optimistix as optx
 
 import jaxsss
 from jaxsss._config import compile_bound_options, render_jit
-from jaxsss.validate import trusted_traces
 from jaxsss._exported import compiled_program
+from jaxsss.validate import trusted_traces
 from fitting.discrepancy import RENDER_MODEL_ERROR, ModelError, discrepancy_modes, light_key
 from fitting.result import CORRELATION_LIMIT
 from fitting.solvers import resolve_solver

@@ -29,10 +29,10 @@ import numpy as np
 
 import jaxsss
 from jaxsss._config import compile_bound_options
+from jaxsss._exported import exported_program
 from jaxsss.validate import trusted_traces
 from jaxsss.fresnel import resolve_fresnel_method
 from fitting import _kernel as K
-from jaxsss._exported import exported_program
 from fitting.io import ProfileData
 from fitting.models import MODEL_NOISE_LIMIT, ROUGH_RELATIVE_R_MIN_LD, resolve_model
 from fitting.result import CONDITION_LIMIT, CORRELATION_LIMIT, ProfileFit
