@@ -39,7 +39,7 @@ import optimistix as optx
 from fitting._dipole_jac import dipole_value_and_jac
 from fitting.result import CHI2_P
 from fitting.models import model_profiles, resolve_model
-from fitting.solvers import resolve_solver
+from fitting.solvers import resolve_solver, results_from_code
 
 # Candidate reduced albedos of the start, as 1 - alpha' = sigma_a / sigma_t': alpha' in factors of 2 from 1e-4 to
 # 0.41 (dilute media such as the Narasimhan table's wines have alpha' ~ 1e-3), then 1 - alpha' in factors of 2 from
@@ -551,7 +551,7 @@ def with_valley(sol, mask, r, y, se, eta, d, cfg: Config):
 
     def one_round(i, rows):
         th, res, st, stat = rows
-        v0 = valley_starts(th, optx.RESULTS.successful.__class__(res, optx.RESULTS), st, stat, mask, r, y, se, eta,
+        v0 = valley_starts(th, results_from_code(res), st, stat, mask, r, y, se, eta,
                            d, cfg)
         new = solve_starts(v0, mask, r, y, se, eta, d, cfg)
         at = S + 2 * i
@@ -561,7 +561,7 @@ def with_valley(sol, mask, r, y, se, eta, d, cfg: Config):
                 jax.lax.dynamic_update_slice_in_dim(stat, new[3], at, 0))
 
     th, res, st, stat = jax.lax.fori_loop(0, VALLEY_ROUNDS, one_round, rows)
-    return th, optx.RESULTS.successful.__class__(res, optx.RESULTS), st, stat
+    return th, results_from_code(res), st, stat
 
 
 # --- 4. Choice among the starts, covariance, suspect checks --------------------------------------------------------

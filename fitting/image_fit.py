@@ -60,7 +60,7 @@ from jaxsss._exported import compiled_program
 from jaxsss.validate import trusted_traces
 from fitting.discrepancy import RENDER_MODEL_ERROR, ModelError, discrepancy_modes, light_key
 from fitting.result import CORRELATION_LIMIT
-from fitting.solvers import resolve_solver
+from fitting.solvers import resolve_solver, results_from_code
 
 __all__ = ["LD_CANDIDATES_MM", "RD_CANDIDATES", "REL_STDERR_LIMIT", "RENDER_MODEL_ERROR", "ImageFit", "ModelError",
            "fit_image"]
@@ -507,7 +507,7 @@ def fit_image(scene, target_image, *, method: str = "hierarchical", max_pixels: 
     t0 = time.perf_counter()
     theta, code, n_steps = solve(theta0, args)
     theta = jax.block_until_ready(theta)
-    result = optx.RESULTS.successful.__class__(code, optx.RESULTS)
+    result = results_from_code(code)
     seconds["solve"] = time.perf_counter() - t0
     res = residuals(theta, (tuple(relative), eta, g, fresnel))
     rms = jnp.sqrt(jnp.sum(res**2) / float(n_pixels * n_channels))

@@ -36,7 +36,7 @@ from fitting import _kernel as K
 from fitting.io import ProfileData
 from fitting.models import MODEL_NOISE_LIMIT, ROUGH_RELATIVE_R_MIN_LD, resolve_model
 from fitting.result import CONDITION_LIMIT, CORRELATION_LIMIT, ProfileFit
-from fitting.solvers import resolve_solver
+from fitting.solvers import resolve_solver, results_from_code
 
 __all__ = ["FitWarning", "fit_jacobian_wrt_data", "fit_profile", "fit_profiles"]
 
@@ -272,8 +272,6 @@ def _exported_fit(cfg, r, ops, per_problem):
     compilation cache serves the rest. The status leaves as its integer code (the exported output holds plain arrays)
     and becomes an ``optimistix.RESULTS`` again here. Without an export directory, or for a user's registered model
     (the source digest covers jaxsss and fitting, not the model's own code), the jitted function as before."""
-    import optimistix as optx
-
     own = resolve_model(cfg.model).evaluate.__module__.split(".")[0] in ("fitting", "jaxsss")
     fn = _compiled("fit", cfg, False)
 
@@ -286,7 +284,7 @@ def _exported_fit(cfg, r, ops, per_problem):
     if program is None:
         return _compiled("fit", cfg)(r, ops, *per_problem)
     out, *rest = program(r, ops, *per_problem)
-    out = {**out, "result": optx.RESULTS.successful.__class__(out["result"], optx.RESULTS)}
+    out = {**out, "result": results_from_code(out["result"])}
     return (out, *rest)
 
 

@@ -23,7 +23,7 @@ from typing import Callable, NamedTuple
 
 import optimistix as optx
 
-__all__ = ["SOLVERS", "LeastSquaresSolver", "resolve_solver"]
+__all__ = ["SOLVERS", "LeastSquaresSolver", "resolve_solver", "results_from_code"]
 
 
 class LeastSquaresSolver(NamedTuple):
@@ -55,3 +55,9 @@ def resolve_solver(name) -> LeastSquaresSolver:
     except (KeyError, TypeError):
         valid = ", ".join(repr(k) for k in SOLVERS)
         raise ValueError(f"fit_profile(solver={name!r}) is not a registered solver; valid names: {valid}") from None
+
+
+def results_from_code(code) -> optx.RESULTS:
+    """The ``optimistix.RESULTS`` whose integer code is ``code`` (``RESULTS.<member>._value``, any shape): the status
+    of a program whose outputs are plain arrays (the fits' slot blocks, the exported fits)."""
+    return optx.RESULTS.successful.__class__(code, optx.RESULTS)
