@@ -102,8 +102,8 @@ __all__ = ["BSSRDFS", "GRID_PER_DECADE", "OBLIQUE_MUS", "WhiteKernel", "albedo_c
            "half_space_reflection", "hat_weights",
            "refracted_exit_distribution", "shift_ratio_table", "surface_tangents", "incident_flux", "oblique_dir",
            "oblique_pairs",
-           "oblique_sources", "shift_reach", "WHITE_DENSITY", "WhiteSources", "white_kernel", "white_table",
-           "white_tables"]
+           "oblique_sources", "shift_reach", "KINKED_LIGHTS", "WHITE_DENSITY", "WHITE_DENSITY_KINKED", "WhiteSources",
+           "white_kernel", "white_table", "white_tables"]
 
 BSSRDFS = ("auto", "dipole", "white", "white-oblique")
 """The values of the ``bssrdf`` option (``"auto"``: the plan chooses)."""
@@ -165,6 +165,19 @@ band; docs/path_tracer.md, "Sample density"), density 1 -> 2: skin1 0.042 / 0.04
 band 0.080 / 0.111 / 0.142 -> 0.087 / 0.095 / 0.119; ketchup's blue band 0.166 -> 0.121; the teapot 0.080 / 0.070 /
 0.069 -> 0.077 / 0.065 / 0.063; potato (held out) 0.098 / 0.095 / 0.089 -> 0.082 / 0.070 / 0.055. It costs 15-50% of
 the render's time."""
+WHITE_DENSITY_KINKED = 3.0
+"""The white kernels' base density under a light whose irradiance has a kink: a point, spot or directional light
+(:data:`KINKED_LIGHTS`), whose terminator is sharp. There the near field's disc mean (``rho_0``, four sample radii)
+carries lit light past the terminator in the channel of shortest ``l_u``, which sets the spacing: skin1's blue was
++20 to +32% at cos -0.1 to 0 in the zoomed view. Against Mitsuba (hierarchical, auto; band; docs/path_tracer.md, "The
+near field's blur at a hard terminator"), density 2 -> 3: the skin1 sphere's band 0.065 / 0.083 / 0.114 -> 0.062 /
+0.072 / 0.086, its zoomed view 0.043 / 0.086 / 0.152 -> 0.038 / 0.068 / 0.084, held-out potato 0.079 / 0.096 / 0.148
+-> 0.058 / 0.066 / 0.100 and chicken1 (mean of four seeds) 0.076 / 0.087 / 0.178 -> 0.072 / 0.076 / 0.151; ketchup,
+nearly single scattering in green, loses (mare_lit red 0.076 -> 0.082, green band 0.096 -> 0.116). It costs 10-25% of
+the render's time. Environment maps and area lights have no such kink (their terminator is a penumbra): density 3
+left their errors within 0.003 and cost 12-47%, so they keep :data:`WHITE_DENSITY`."""
+KINKED_LIGHTS = ("point", "spot", "directional")
+"""Light kinds whose irradiance has a kink at the terminator (:data:`WHITE_DENSITY_KINKED`)."""
 MEASURED_DG = 0.45
 """How far in ``g`` from its oblique sources the transfer of the oblique/normal ratio was measured (module docstring)."""
 FORWARD_G = 0.5

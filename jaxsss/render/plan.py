@@ -106,7 +106,7 @@ def make_plan(scene, *, method: str | None = None, eps: float | None = None, cut
         bssrdf: the profile kernel to decide (:data:`jaxsss.render.bssrdf.BSSRDFS`; ``"auto"`` chooses); None
             (methods with their own transport model) leaves the dipole and adds no plan line.
     """
-    from jaxsss.render.bssrdf import WHITE_DENSITY, choose_bssrdf
+    from jaxsss.render.bssrdf import KINKED_LIGHTS, WHITE_DENSITY, WHITE_DENSITY_KINKED, choose_bssrdf
     from jaxsss.render.radiance import single_scattering_share
 
     settings = scene.render
@@ -130,12 +130,16 @@ def make_plan(scene, *, method: str | None = None, eps: float | None = None, cut
     else:
         items.append(PlanItem("method", True, f"hierarchical sum, solid-angle threshold eps = {eps:g} sr (Eq. 12)"
                               + eps_why))
-    # The white kernels sample twice as densely as the paper's dipole (WHITE_DENSITY: measured against Mitsuba).
-    base = 1.0 if kernel == "dipole" else WHITE_DENSITY
+    # The white kernels sample twice as densely as the paper's dipole (WHITE_DENSITY: measured against Mitsuba), three
+    # times under a light with a sharp terminator (WHITE_DENSITY_KINKED).
+    kinked = [light.kind for light in scene.lights if light.kind in KINKED_LIGHTS]
+    base = 1.0 if kernel == "dipole" else (WHITE_DENSITY_KINKED if kinked else WHITE_DENSITY)
     l_u = float(np.min(np.asarray(medium.l_u)))
     n_samples, why = sample_count(float(scene.mesh.area), l_u, base * settings.density, settings.max_samples)
     if base != 1.0:
-        why += f" (the {kernel} kernel's {base:g} x the scene's density {settings.density:g})"
+        light_why = (f"; a {kinked[0]} light's sharp terminator" if kinked else
+                     "; no light with a sharp terminator")
+        why += f" (the {kernel} kernel's {base:g}{light_why} x the scene's density {settings.density:g})"
     items.append(PlanItem("irradiance samples", True, f"{n_samples} samples: {why}"))
 
     lone = len(scene.occluders) == 0

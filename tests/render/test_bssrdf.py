@@ -333,6 +333,34 @@ def test_the_plan_chooses_the_kernel_and_counts_single_scattering_once():
     assert forced.bssrdf == "white"
 
 
+def test_the_white_kernels_sample_densest_under_a_light_with_a_sharp_terminator():
+    """Base density WHITE_DENSITY_KINKED (3) under a point, spot or directional light, WHITE_DENSITY (2) under an
+    environment or area light alone, the paper's 1 for the dipole; the plan line says which and why, and the scene's
+    density multiplies the base."""
+    from jaxsss.render.bssrdf import KINKED_LIGHTS, WHITE_DENSITY, WHITE_DENSITY_KINKED
+
+    assert (WHITE_DENSITY, WHITE_DENSITY_KINKED) == (2.0, 3.0)
+    assert set(KINKED_LIGHTS) == {"point", "spot", "directional"}
+    skin = {"sigma_a": [0.032, 0.17, 0.48], "sigma_s_prime": [0.74, 0.88, 1.01], "eta": 1.0}
+    sphere_light = [{"type": "sphere", "position": [-20.0, -10.0, 10.0], "radius": 2.0, "radiance": 30.0}]
+    lights = {"point": _scene_dict(skin)["light"], "sphere": sphere_light,
+              "both": _scene_dict(skin)["light"] + sphere_light}
+
+    def samples(light, bssrdf="auto", density=0.3):
+        scene = parse_scene({**_scene_dict(skin), "light": lights[light], "render": {"density": density}},
+                            path="<test>")
+        item = {i.name: i for i in make_plan(scene, bssrdf=bssrdf).items}["irradiance samples"]
+        return int(item.reason.split()[0]), item.reason
+
+    (n_point, why_point), (n_sphere, why_sphere) = samples("point"), samples("sphere")
+    assert "3; a point light's sharp terminator" in why_point and "2; no light with a sharp terminator" in why_sphere
+    assert n_point / n_sphere == pytest.approx(1.5, rel=0.01)
+    assert samples("both")[0] == n_point  # any light with a kink decides
+    n_dipole, why_dipole = samples("point", bssrdf="dipole")
+    assert n_point / n_dipole == pytest.approx(3.0, rel=0.01) and "kernel's" not in why_dipole
+    assert samples("point", density=0.6)[0] / n_point == pytest.approx(2.0, rel=0.01)
+
+
 @pytest.mark.parametrize("g, eta, kernel, needle", [
     # skin1 at its table index: no oblique tables, so the ratio of the nearest tabulated pair, and no advice to make
     # tables (the family covers the pair).
