@@ -164,7 +164,8 @@ shows where ``R`` is narrow and the light has a kink: the terminator of an absor
 band; docs/path_tracer.md, "Sample density"), density 1 -> 2: skin1 0.042 / 0.043 / 0.044 -> 0.042 / 0.038 / 0.039,
 band 0.080 / 0.111 / 0.142 -> 0.087 / 0.095 / 0.119; ketchup's blue band 0.166 -> 0.121; the teapot 0.080 / 0.070 /
 0.069 -> 0.077 / 0.065 / 0.063; potato (held out) 0.098 / 0.095 / 0.089 -> 0.082 / 0.070 / 0.055. It costs 15-50% of
-the render's time."""
+the render's time. The base under environment maps and area lights; under a light with a sharp terminator,
+:data:`WHITE_DENSITY_KINKED`."""
 WHITE_DENSITY_KINKED = 3.0
 """The white kernels' base density under a light whose irradiance has a kink: a point, spot or directional light
 (:data:`KINKED_LIGHTS`), whose terminator is sharp. There the near field's disc mean (``rho_0``, four sample radii)
