@@ -63,7 +63,7 @@ def test_the_zoomed_terminator_against_its_path_traced_reference():
     density 2 the near field's disc mean carried lit light past the point light's kink: blue +32 / +20% at cos -0.1 to
     -0.05 / -0.05 to 0, band 0.043 / 0.086 / 0.152. Achieved (2026-11-28, base density 3,
     jaxsss.render.bssrdf.WHITE_DENSITY_KINKED): band 0.038 / 0.068 / 0.084, mare_lit 0.061 / 0.054 / 0.062 (red is
-    +11-12% on the dark side at cos -0.5 to -0.1, the long-`l_u` error of docs/path_tracer.md), sums 0.988 / 0.977 /
+    +10-12% on the dark side at cos -0.5 to -0.1, the long-`l_u` error of docs/path_tracer.md), sums 0.988 / 0.977 /
     0.977. Bounds: the band's goal, blue's band + 10%, and blue's signed error just past the terminator within 10%."""
     scene = load_scene(REFERENCES / "skin1_sphere_zoom.toml")
     data = np.load(REFERENCES / "skin1_sphere_zoom.npz")
