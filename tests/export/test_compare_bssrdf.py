@@ -38,11 +38,17 @@ BAND_MAX = (0.069, 0.080, 0.095)
 SUM_TOL = (0.02, 0.02, 0.02)
 
 
+def reference(name: str):
+    """``(scene, image (H, W, 3), coverage (H, W))`` of the committed Mitsuba reference ``name``, float64."""
+    data = np.load(REFERENCES / f"{name}.npz")
+    image, coverage = data["image"].astype(np.float64), data["coverage"].astype(np.float64)
+    return load_scene(REFERENCES / f"{name}.toml"), image, coverage
+
+
 @pytest.fixture(scope="module")
 def skin1():
-    scene = load_scene(REFERENCES / "skin1_sphere.toml")
-    data = np.load(REFERENCES / "skin1_sphere.npz")
-    return scene, data["image"].astype(np.float64), data["coverage"].astype(np.float64), pixel_geometry(scene)
+    scene, ref, coverage = reference("skin1_sphere")
+    return scene, ref, coverage, pixel_geometry(scene)
 
 
 def test_default_render_is_within_the_achieved_error_of_the_path_tracer(skin1):
@@ -65,9 +71,7 @@ def test_the_zoomed_terminator_against_its_path_traced_reference():
     jaxsss.render.bssrdf.WHITE_DENSITY_KINKED): band 0.038 / 0.068 / 0.084, mare_lit 0.061 / 0.054 / 0.062 (red is
     +10-12% on the dark side at cos -0.5 to -0.1, the long-`l_u` error of docs/path_tracer.md), sums 0.988 / 0.977 /
     0.977. Bounds: the band's goal, blue's band + 10%, and blue's signed error just past the terminator within 10%."""
-    scene = load_scene(REFERENCES / "skin1_sphere_zoom.toml")
-    data = np.load(REFERENCES / "skin1_sphere_zoom.npz")
-    ref, coverage = data["image"].astype(np.float64), data["coverage"].astype(np.float64)
+    scene, ref, coverage = reference("skin1_sphere_zoom")
     result = render(scene)
     pixels = pixel_geometry(scene)
     m = compare_images(result.image, ref, pixels, coverage=coverage)
@@ -93,9 +97,7 @@ def test_marble_teapot_against_its_path_traced_reference():
     shadowed side 80-90% too dark, where the lit spout and body light each other in the path tracer (docs/
     path_tracer.md, "The teapot's terminator"). The old dipole + single scattering: mare_lit 0.22-0.23, sums
     1.17-1.20. Bounds: the goals, and the band's signed error within 15% (-19 to -31% without the bounce)."""
-    scene = load_scene(REFERENCES / "marble_teapot.toml")
-    data = np.load(REFERENCES / "marble_teapot.npz")
-    ref, coverage = data["image"].astype(np.float64), data["coverage"].astype(np.float64)
+    scene, ref, coverage = reference("marble_teapot")
     result = render(scene)
     assert result.report["plan"]["bssrdf"] == "white-oblique" and result.report["plan"]["self_bounce"]
     pixels = pixel_geometry(scene)
@@ -115,9 +117,7 @@ def test_skin1_under_a_sphere_light_against_its_path_traced_reference():
     band 0.074 / 0.075 / 0.092 (the penumbra +5 to +8% in every channel), sums 1.006 / 1.012 / 1.008 -- every goal
     met; the direct and cached methods the same within 0.006. Bounds: the goal per pixel, the band + 10%, the sums
     within 2%."""
-    scene = load_scene(REFERENCES / "skin1_sphere_arealight.toml")
-    data = np.load(REFERENCES / "skin1_sphere_arealight.npz")
-    ref, coverage = data["image"].astype(np.float64), data["coverage"].astype(np.float64)
+    scene, ref, coverage = reference("skin1_sphere_arealight")
     assert scene.lights[0].kind == "sphere"
     result = render(scene)
     m = compare_images(result.image, ref, pixel_geometry(scene), coverage=coverage)
@@ -143,9 +143,7 @@ def test_skin1_at_a_dielectric_boundary_under_a_sky_against_its_path_traced_refe
     (8-10 with the Lambertian exit); at eta 1.3 the dipole fails the sums."""
     from jaxsss.export.compare import error_map
 
-    scene = load_scene(REFERENCES / f"{name}.toml")
-    data = np.load(REFERENCES / f"{name}.npz")
-    ref, coverage = data["image"].astype(np.float64), data["coverage"].astype(np.float64)
+    scene, ref, coverage = reference(name)
     result = render(scene)
     plan = result.report["plan"]
     assert plan["bssrdf"] == "white-oblique"
@@ -178,9 +176,7 @@ def test_forward_scattering_sphere_against_its_path_traced_reference():
     0.106 / 0.112, band bias +11 / +18 / +19%; with isotropic scattering's exit distribution 0.36 / 0.43 / 0.51. The
     dipole plus single scattering (auto's choice before): 0.138 / 0.143 / 0.157, band 0.30-0.33, sums 0.928 / 0.904 /
     0.882. Bounds: the achieved level plus about 10%, the sum goal, and the dipole's sums failing it."""
-    scene = load_scene(REFERENCES / "g09_sphere.toml")
-    data = np.load(REFERENCES / "g09_sphere.npz")
-    ref, coverage = data["image"].astype(np.float64), data["coverage"].astype(np.float64)
+    scene, ref, coverage = reference("g09_sphere")
     result = render(scene)
     assert result.report["plan"]["bssrdf"] == "white-oblique"
     pixels = pixel_geometry(scene)

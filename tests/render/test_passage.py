@@ -312,13 +312,11 @@ def test_the_terminator_of_the_path_traced_ketchup_sphere():
     1.023 (docs/path_tracer.md, "The near field's blur at a hard terminator"). Bounds: the level before that plus
     about 10% (the goal's 3% for the sums), and the passage must beat the half-space in the band of every channel."""
     from jaxsss.export.compare import compare_images, pixel_geometry
-    from jaxsss.render import load_scene, render
+    from jaxsss.render import render
     from jaxsss.render.methods import image_of, resolve_method
-    from tests.export.test_compare_bssrdf import REFERENCES
+    from tests.export.test_compare_bssrdf import reference
 
-    scene = load_scene(REFERENCES / "ketchup_sphere.toml")
-    data = np.load(REFERENCES / "ketchup_sphere.npz")
-    ref, coverage = data["image"].astype(np.float64), data["coverage"].astype(np.float64)
+    scene, ref, coverage = reference("ketchup_sphere")
     result = render(scene)
     pixels = pixel_geometry(scene)
     m = compare_images(result.image, ref, pixels, coverage=coverage)
