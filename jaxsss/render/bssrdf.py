@@ -83,6 +83,7 @@ FORWARD_G`` and ``eta`` in the family's range, the dipole with its reason otherw
 
 from __future__ import annotations
 
+import dataclasses
 import functools
 import math
 from pathlib import Path
@@ -99,7 +100,7 @@ from jaxsss.render.exit_direction import anisotropic_exit_distribution
 
 __all__ = ["BSSRDFS", "GRID_PER_DECADE", "OBLIQUE_MUS", "WhiteKernel", "albedo_correction", "chandrasekhar_h",
            "choose_bssrdf", "directional_albedo", "exit_distribution", "exit_radiance_nodes", "exit_weights",
-           "half_space_reflection", "hat_weights",
+           "half_space_reflection", "hat_weights", "multiple_exit_distribution", "multiple_orders",
            "refracted_exit_distribution", "shift_ratio_table", "surface_tangents", "incident_flux", "oblique_dir",
            "oblique_pairs",
            "oblique_sources", "shift_reach", "KINKED_LIGHTS", "WHITE_DENSITY", "WHITE_DENSITY_KINKED", "WhiteSources",
@@ -525,6 +526,27 @@ def exit_distribution(mu_o, mu_i, albedo):
     return h_o[:, None, :] / (2.0 * (mu_o[:, None, None] + mu_i[None, :, None]) * norm[None])
 
 
+def multiple_exit_distribution(mu_o, mu_i, albedo):
+    """``X_2(mu_o | mu_i)``: the exit distribution of the orders >= 2 of a semi-infinite isotropic index-matched
+    medium, relative to a Lambertian exit of the same exitance (``int_0^1 X_2 2 mu_o dmu_o = 1``).
+
+    Chandrasekhar's reflection function less its first order, ``f_r - f_r,1 = (a / 4 pi) (H(mu_i) H(mu_o) - 1) /
+    (mu_i + mu_o)``, normalised (32-node Gauss-Legendre). The first order alone leaves towards grazing views
+    brightest (``1 / (mu_i + mu_o)``); what is left is flatter. ``mu_o`` ``(Q,)``, ``mu_i`` ``(K,)``, ``albedo``
+    ``(C,)`` give ``(Q, K, C)``; where nothing but the first order is (``a = 0``) it is Lambertian."""
+    t, w = jnp.asarray(_MU_T), jnp.asarray(_MU_W)
+    h_i = chandrasekhar_h(jnp.asarray(mu_i)[:, None], albedo)  # (K, C)
+
+    def shape(mu):
+        # Chandrasekhar's reflection function without its first order, isotropic scattering.
+        return (h_i[None] * chandrasekhar_h(mu[:, None], albedo)[:, None] - 1.0) / (
+            mu[:, None, None] + jnp.asarray(mu_i)[None, :, None])
+
+    norm = jnp.einsum("t,tkc->kc", 2.0 * w * t, shape(t))
+    ok = norm > 1e-12
+    return jnp.where(ok[None], shape(mu_o) / jnp.where(ok, norm, 1.0)[None], 1.0)
+
+
 def refracted_exit_distribution(mu_o, mu_i, albedo, eta):
     """The exit distribution through a smooth dielectric boundary (``eta = n_inside / n_outside >= 1``), relative to
     a Lambertian exit of the same exitance (``int_0^1 Y 2 mu_o dmu_o = 1``)::
@@ -580,6 +602,9 @@ class WhiteKernel(eqx.Module):
     # The exit by distance (None: off): sigma_t' (C,) and the amplitude table c (K, D, C); the sums then carry 2K
     # nodes, each node's exitance then its exitance weighted by c(d) (jaxsss.render.exit_distance).
     exit_split: tuple | None = None
+    # The near field's mean flux density weighted by w R instead of w (a profile without the first order's peak:
+    # :func:`multiple_orders`; :meth:`near_terms`).
+    profile_weighted_near: bool = eqx.field(static=True, default=False)
 
     def profile(self, r, kappa=None):
         """``R_k(r)`` in 1/mm^2 at distances ``r`` (mm): ``(P,)`` gives ``(P, K, C)``; ``(P, K, C)`` is evaluated
@@ -749,7 +774,11 @@ class WhiteKernel(eqx.Module):
         """A near pair's ``(point, w F, w A)``, each ``(P, K, C)``, with the near-field weight at the distance from
         the *shifted* entry point, so that the point part ``(1 - w) R`` vanishes where ``R`` peaks
         (:func:`jaxsss.render.radiance.exitance_near`); with exit ``weights`` (:meth:`pair`) the point part is the
-        pairs' radiance ``(P, C)``."""
+        pairs' radiance ``(P, C)``. With :attr:`profile_weighted_near` the spread parts are ``w R F`` and ``w R A``
+        instead: the disc's mean flux density weighted as the disc integral weights it (``w R``), which a profile
+        with the first order's ``1 / r`` peak cannot afford (it would be the nearest sample's; the skin1 sphere's
+        blue band 0.086 -> 0.126), and a profile without it gains from (the zoomed terminator's blue past the
+        terminator +11.6 -> +8.4%; docs/path_tracer.md, "The first order in the object's geometry")."""
         from jaxsss.render.radiance import near_weight
 
         r, f = self._distance(delta, sources)
@@ -757,9 +786,13 @@ class WhiteKernel(eqx.Module):
         if r.ndim == 1:
             r = jnp.broadcast_to(r[:, None, None], f.shape)
         w = near_weight(r, rho0)
-        point = (1.0 - w) * self._curved(r, delta, normals) * f
+        curved = self._curved(r, delta, normals)
+        point = (1.0 - w) * curved * f
         point = self._split(point, delta) if weights is None else self._radiance(point, delta, weights)
-        return point, w * f, w * area[:, None, None]
+        # The disc's mean flux density: weighted by w, or by w R where R has no first-order peak (a kink in the light
+        # within rho_0, a point light's terminator, is then where the profile puts it).
+        q = w * curved if self.profile_weighted_near else w
+        return point, q * f, q * area[:, None, None]
 
     def weighted_disc(self, rho0):
         """``(K, C)``: ``I_w = int_0^rho0 w(r) 2 pi r R_k(r) dr`` with the near-field weight ``w`` of
@@ -837,7 +870,7 @@ def _log(x):
 
 def white_kernel(medium: Medium, sources: WhiteSources, mus: tuple = (1.0,) + KERNEL_MUS,
                  shift: bool = False, curvature: bool = False, passage: float | None = None,
-                 exit_split: bool = False) -> WhiteKernel:
+                 exit_split: bool = False, first_order: bool = False) -> WhiteKernel:
     """Tabulate the profiles at incidence cosines ``mus`` (1, then the oblique nodes of ``sources``, from
     :func:`white_tables`) for ``medium`` on the grid (differentiable in ``sigma_a`` and ``sigma_s'``): normal incidence
     from the white Monte Carlo family, oblique nodes from ``sources`` (module docstring). ``shift``: shift the
@@ -848,12 +881,15 @@ def white_kernel(medium: Medium, sources: WhiteSources, mus: tuple = (1.0,) + KE
     ``shift``): the kernel carries the cut-beam loss table (:mod:`jaxsss.render.passage`), resolved no finer than
     this distance (the samples' spacing), and the flux two more rows (:meth:`WhiteKernel.sources`); None: off.
     ``exit_split``: the sums carry each node's exitance and its ``c(d)``-weighted part
-    (:mod:`jaxsss.render.exit_distance`)."""
+    (:mod:`jaxsss.render.exit_distance`). ``first_order``: the profiles keep orders >= 2 only (the renderer marches
+    the first in the object's geometry, :mod:`jaxsss.render.first_order`; :func:`multiple_orders`)."""
     from jaxsss.mc.white_family import load_white_family
     from jaxsss.render.passage import passage_cells, passage_loss_table
 
     load_white_family()
     kernel = _white_kernel(medium, sources, mus, shift)
+    if first_order:
+        kernel = multiple_orders(kernel, medium, tuple(mus))
     if passage is not None:
         if not shift:
             raise ValueError("white_kernel: passage=True needs shift=True (the cut beam's rows follow the travel's)")
@@ -876,6 +912,43 @@ def white_kernel(medium: Medium, sources: WhiteSources, mus: tuple = (1.0,) + KE
         return kernel
     return eqx.tree_at(lambda k: k.curvature, kernel, _curvature_table(kernel, medium, jnp.asarray(mus)),
                        is_leaf=lambda x: x is None)
+
+
+MULTIPLE_FLOOR = 0.02
+"""Where the half-space's first order exceeds the tabulated profile (Monte Carlo noise and the tables' binning near
+the entry, at strong absorption), the orders >= 2 keep this share of the profile (:func:`multiple_orders`)."""
+
+
+@eqx.filter_jit
+def multiple_orders(kernel: WhiteKernel, medium: Medium, mus: tuple) -> WhiteKernel:
+    """``kernel`` with each node's profile less the half-space's first order at its cosine: ``R_k - R1_k``
+    (:func:`jaxsss.render.first_order.first_order_profile`), index-matched.
+
+    The white tables are Monte Carlo estimates: at strong absorption (ketchup's blue, albedo 0.02) nearly all of
+    ``R`` is first order, and ``R - R1`` is noise of either sign. It is floored at :data:`MULTIPLE_FLOOR` ``R`` and
+    then scaled so that its plane integral is the profile's times the exact share of the orders >= 2, ``1 - A_1 /
+    A`` (Chandrasekhar's directional albedo :func:`directional_albedo` and the first order's
+    :func:`jaxsss.render.first_order.first_order_total`), at least 0.1%. A floor without the rescaling kept 25% of
+    ketchup's blue twice; the difference of the two profiles' integrals on the grid was 3.6% of it off (the tables'
+    first radial bin)."""
+    from jaxsss.render.first_order import first_order_profile, first_order_total
+
+    n_grid = kernel.log_R.shape[1]
+    rho = GRID_RHO_MIN * 10.0 ** (np.arange(n_grid) / GRID_PER_DECADE)
+    sigma_a = jnp.broadcast_to(jnp.asarray(medium.sigma_a, kernel.sigma_s.dtype), kernel.sigma_s.shape)
+    albedo = kernel.sigma_s / (sigma_a + kernel.sigma_s)
+    g = 0.0 if medium.g is None else float(np.asarray(medium.g))
+    r = jnp.exp(kernel.log_R)  # (K, G, C), optical units
+    r1 = jnp.stack([first_order_profile(rho, mu, albedo, g) for mu in mus])
+    # The share of the orders >= 2 in the half-space's reflectance at each node, (K, 1, C).
+    cos = jnp.asarray(mus)[:, None]
+    total = directional_albedo(cos, albedo)
+    share = jnp.maximum(1.0 - first_order_total(cos, albedo) / jnp.where(total > 0, total, 1.0), 1e-3)[:, None]
+    # Plane integrals on the grid: int 2 pi rho^2 R dlog(rho).
+    w = jnp.asarray(2.0 * np.pi * rho**2 * math.log(10.0) / GRID_PER_DECADE)[None, :, None]
+    r2 = jnp.maximum(r - r1, MULTIPLE_FLOOR * r)
+    r2 = r2 * share * jnp.sum(w * r, axis=1, keepdims=True) / jnp.sum(w * r2, axis=1, keepdims=True)
+    return dataclasses.replace(kernel, log_R=_log(r2), profile_weighted_near=True)
 
 
 @eqx.filter_jit
@@ -958,6 +1031,8 @@ def exit_radiance_nodes(medium: Medium, exitance, cos_o, mus, model: str, azimut
     ``"distance"``: the same with ``exitance`` ``(Q, 2K, C)``, each node's exitance and its part weighted by the
     distance amplitude ``c(d)``, leaving by ``X`` and ``X phi``
     (:func:`jaxsss.render.exit_distance.exit_split_distribution`).
+    ``"multiple"`` (index-matched, ``g = 0``, the first order marched apart: :mod:`jaxsss.render.first_order`): the
+    orders >= 2 only, by :func:`multiple_exit_distribution`.
     ``"anisotropic"`` (index-matched, ``g > 0``): the same with the Monte Carlo exit distribution of a
     forward-scattering half-space, which depends on the azimuth between the light's travel and the view
     (:func:`jaxsss.render.exit_direction.anisotropic_exit_distribution`; ``azimuth`` ``(Q, H - 1)`` its
@@ -994,6 +1069,8 @@ def exit_weights(medium: Medium, cos_o, mus, model: str, n_nodes: int, n_channel
         from jaxsss.render.exit_distance import exit_split_distribution
 
         x = exit_split_distribution(mu_o, mus, albedo)
+    elif model == "multiple":
+        x = multiple_exit_distribution(mu_o, jnp.asarray(mus), albedo)
     else:
         x = exit_distribution(mu_o, jnp.asarray(mus), albedo)
     # Exit by Chandrasekhar's reflection function, node by node.

@@ -74,6 +74,7 @@ class ScenePlan(NamedTuple):
     items: tuple[PlanItem, ...]
     bssrdf: str = "dipole"
     self_bounce: bool = False
+    first_order: bool = False
 
     def explain(self) -> str:
         """The plan as text, one line per decision."""
@@ -180,6 +181,9 @@ def make_plan(scene, *, method: str | None = None, eps: float | None = None, cut
     else:
         why = f"{why} (estimated share {share:.2g})"
     items.append(PlanItem("single scattering", single, why))
+    first_order, why = _first_order(scene, kernel, indirect or self_bounce)
+    if kernel != "dipole":
+        items.append(PlanItem("first order in the object's geometry", first_order, why))
 
     specular = scene.material.specular_roughness is not None
     items.append(PlanItem("specular highlights", specular,
@@ -235,4 +239,29 @@ def make_plan(scene, *, method: str | None = None, eps: float | None = None, cut
         items.append(PlanItem("occluders", True, f"{len(scene.occluders)} opaque Lambertian object(s) shaded "
                                                  "directly"))
     return ScenePlan(method, eps, n_samples, shadows, indirect, single, specular, r_cut, shared, tuple(items),
-                     kernel, self_bounce)
+                     kernel, self_bounce, first_order)
+
+
+def _first_order(scene, kernel: str, indirect: bool) -> tuple[bool, str]:
+    """Whether the white kernel's first order is marched in the object's geometry (:mod:`jaxsss.render.first_order`),
+    and why (the plan's line)."""
+    from jaxsss.render.first_order import FIRST_ORDER_LIGHTS
+
+    medium = scene.material.medium
+    g = 0.0 if medium.g is None else float(np.max(np.asarray(medium.g)))
+    eta = float(np.max(np.asarray(medium.eta)))
+    other = [light.kind for light in scene.lights if light.kind not in FIRST_ORDER_LIGHTS]
+    if kernel != "white-oblique":
+        return False, f"the {kernel} kernel keeps the half-space's first order"
+    if eta != 1.0 or g != 0.0:
+        return False, (f"eta = {eta:g}, g = {g:g}: marched only at an index-matched boundary with isotropic "
+                       "scattering (eta = 1, g = 0); the white profile's half-space first order is kept")
+    if other:
+        return False, f"a {other[0]} light is not marched; the white profile's half-space first order is kept"
+    if indirect:
+        return False, ("indirect light (occluders' or the object's own bounce) enters the profiles only; the white "
+                       "profile's half-space first order is kept")
+    if scene.material.texture is not None:
+        return False, "the texture scales the profiles' entry only; the white profile's half-space first order is kept"
+    return True, ("marched along each view ray inside, the light's path to each point traced (eta = 1, g = 0); the "
+                  "white profiles keep orders >= 2 and leave by Chandrasekhar's multiple-scattering exit")

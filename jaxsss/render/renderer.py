@@ -119,9 +119,12 @@ class Prepared(ReflectingPoints):
                     g = 0.0 if medium.g is None else medium.g
                     irradiance = irradiance * interaction_probability(
                         self.light_chord, medium.sigma_a + medium.sigma_s_prime / (1.0 - g))
-            if self.bssrdf_exit in ("chandrasekhar", "distance", "anisotropic") and len(self.bssrdf_mus) > 1:
+            index_matched = ("chandrasekhar", "distance", "anisotropic", "multiple")
+            if self.bssrdf_exit in index_matched and len(self.bssrdf_mus) > 1:
                 # Index-matched: the node mix reflects Chandrasekhar's exact total at every incidence cosine (for
-                # g > 0 the isotropic equivalent's: its curve in mu has the same shape within a few per cent).
+                # g > 0 the isotropic equivalent's: its curve in mu has the same shape within a few per cent). With
+                # the first order marched apart the same factor (the orders >= 2's own, A - A_1, measured worse:
+                # docs/path_tracer.md, "The first order in the object's geometry").
                 albedo = jnp.broadcast_to(medium.alpha_prime, irradiance.shape[-1:])
                 irradiance = irradiance * albedo_correction(self.light_cos, self.bssrdf_mus, albedo)
                 if indirect is not None:
@@ -147,7 +150,7 @@ class Prepared(ReflectingPoints):
         return white_kernel(medium, self.bssrdf_tables, self.bssrdf_mus, shift=shift,
                             curvature=self.ent_normal is not None,
                             passage=PASSAGE_FLOOR * self.rho0 if self.passage_cut else None,
-                            exit_split=self.bssrdf_exit == "distance")
+                            exit_split=self.bssrdf_exit == "distance", first_order=self.bssrdf_exit == "multiple")
 
     @property
     def normals(self):
@@ -278,7 +281,9 @@ def assemble_prepared(scene, plan: ScenePlan, samples, tree, shading: ShadingPoi
         medium = scene.material.medium
         mus, tables = white_tables(0.0 if medium.g is None else float(medium.g), float(medium.eta),
                                    oblique=plan.bssrdf == "white-oblique")
-        exit_model = exit_model_for(medium)
+        # The first order marched in the geometry (plan.first_order): the profiles keep orders >= 2 and leave by
+        # their own exit distribution.
+        exit_model = "multiple" if shading.first_order is not None else exit_model_for(medium)
         if plan.bssrdf == "white-oblique":
             tangent = to_device(surface_tangents(samples.light.to_light[order], samples.normals[order],
                                                  float(medium.eta)))

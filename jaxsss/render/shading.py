@@ -54,12 +54,15 @@ class ShadingPoints(NamedTuple):
     spp: int
     n_rays: int
     weight: np.ndarray  # (Q,) each point's weight in its pixel's mean (1 / that pixel's rays)
+    # The first order's march (jaxsss.render.first_order.FirstOrderPaths), or None
+    first_order: Any = None
 
     def subset(self, idx: np.ndarray) -> ShadingPoints:
         """The points ``idx`` only (the image part is unchanged)."""
         light = None if self.light is None else type(self.light)(*(a[idx] for a in self.light))
+        march = None if self.first_order is None else jax.tree.map(lambda a: a[idx], self.first_order)
         return self._replace(pos=self.pos[idx], normal=self.normal[idx], to_eye=self.to_eye[idx],
-                             pixel=self.pixel[idx], light=light, weight=self.weight[idx])
+                             pixel=self.pixel[idx], light=light, weight=self.weight[idx], first_order=march)
 
 
 def face_the_eye(normal: np.ndarray, to_eye: np.ndarray) -> np.ndarray:
@@ -206,8 +209,13 @@ def shading_points(scene, geometry, plan, resolution, pixel_mask, n_channels: in
     q_light = None
     if plan.single_scattering or plan.specular:
         q_light = light_field(scene.lights, q_pos, q_normal, geometry if plan.shadows else None)
+    march = None
+    if getattr(plan, "first_order", False):
+        from jaxsss.render.first_order import first_order_paths
+
+        march = first_order_paths(scene, geometry, q_pos, q_normal, to_eye, n_channels, seed=scene.render.seed)
     return ShadingPoints(q_pos, q_normal, to_eye, rays.pixel[ray_idx[on_obj]], q_light, constant, (h, w), rays.spp,
-                         len(rays.pixel), rays.weight[ray_idx[on_obj]])
+                         len(rays.pixel), rays.weight[ray_idx[on_obj]], march)
 
 
 def point_shading(points, n_channels: int, owner: str = "prepare") -> ShadingPoints:
@@ -236,6 +244,8 @@ class ShadedPoints(eqx.Module):
     # (Q, H - 1) the light's azimuth to the view, cos(m phi) (white kernels with g > 0 at eta = 1), or None
     exit_azimuth: jax.Array | None
     constant: jax.Array  # (H * W, C): background and occluders, already weighted
+    # The first order marched in the object's geometry (jaxsss.render.first_order.FirstOrderPaths), or None
+    first_order: Any
     shape: tuple = eqx.field(static=True)  # (H, W)
     spp: int = eqx.field(static=True)
     single_scattering: bool = eqx.field(static=True)
@@ -264,8 +274,12 @@ class ShadedPoints(eqx.Module):
 
     def radiance_from_diffusion(self, medium: Medium, diffusion):
         """Radiance towards the eye at the shaded points, ``(Q, C)`` W/(mm^2 sr): the diffusion radiance
-        ``diffusion`` ``(Q, C)`` plus the optional single-scattering and specular terms."""
+        ``diffusion`` ``(Q, C)`` plus the optional first-order, single-scattering and specular terms."""
         out = diffusion
+        if self.first_order is not None:
+            from jaxsss.render.first_order import first_order_radiance
+
+            out = out + first_order_radiance(medium, self.first_order)
         if self.single_scattering:
             out = out + rad.single_scattering(medium, self.query_normal, self.to_eye, self.query_to_light,
                                               self.query_irradiance)
@@ -294,6 +308,7 @@ def shaded_fields(scene, plan, shading: ShadingPoints) -> dict[str, Any]:
         "query_weight": to_device(shading.weight),
         "exit_azimuth": exit_azimuth(scene, plan, shading),
         "constant": to_device(shading.constant),
+        "first_order": shading.first_order,
         "shape": shading.shape,
         "spp": shading.spp,
         "single_scattering": plan.single_scattering,

@@ -309,8 +309,12 @@ def test_the_terminator_of_the_path_traced_ketchup_sphere():
     1.005 / 1.022, red's far side -7% (docs/path_tracer.md, "The cut beam (both ends) and the exit by distance").
     With base density 3 under the point light (``bssrdf.WHITE_DENSITY_KINKED``, 2026-11-28), which ketchup alone of
     the point-lit scenes loses by: band 0.089 / 0.109 / 0.094, mare_lit 0.083 / 0.042 / 0.044, sums 1.000 / 1.006 /
-    1.023 (docs/path_tracer.md, "The near field's blur at a hard terminator"). Bounds: the level before that plus
-    about 10% (the goal's 3% for the sums), and the passage must beat the half-space in the band of every channel."""
+    1.023 (docs/path_tracer.md, "The near field's blur at a hard terminator"). With the first order marched in the
+    sphere and the white profiles' orders >= 2 (jaxsss.render.first_order, 2026-11-28): band 0.058 / 0.046 / 0.063,
+    mare_lit 0.046 / 0.017 / 0.021 (every goal met), sums 1.026 / 1.001 / 1.004. Bounds: the goal per pixel, the band
+    achieved plus about 10%, the goal's 3% for the sums. The passage must beat the half-space in red's band (0.058
+    against 0.117); green and blue (albedo 0.07 and 0.02) are now 96-99% the marched first order, which follows the
+    sphere itself, so their bands change by less than 0.001 without it."""
     from jaxsss.export.compare import compare_images, pixel_geometry
     from jaxsss.render import render
     from jaxsss.render.methods import image_of, resolve_method
@@ -320,12 +324,14 @@ def test_the_terminator_of_the_path_traced_ketchup_sphere():
     result = render(scene)
     pixels = pixel_geometry(scene)
     m = compare_images(result.image, ref, pixels, coverage=coverage)
-    assert np.all(np.array(m["mare_band"]) <= (0.109, 0.119, 0.133)), m["mare_band"]
-    assert np.all(np.array(m["mare_lit"]) <= (0.092, 0.044, 0.05)), m["mare_lit"]
+    assert result.report["plan"]["first_order"]
+    assert np.all(np.array(m["mare_band"]) <= (0.064, 0.051, 0.070)), m["mare_band"]
+    assert np.all(np.array(m["mare_lit"]) <= 0.05), m["mare_lit"]
     assert np.all(np.abs(np.array(m["sum_ratio"]) - 1.0) <= 0.03), m["sum_ratio"]
     state = result.prepared.state
     assert state.passage_cut and state.view_chord is not None  # ketchup's red loses 9-10% at the plateau
     half_space = eqx.tree_at(lambda s: s.light_chord, state, jnp.full_like(state.light_chord, jnp.inf))
     image = np.asarray(image_of(half_space, resolve_method("hierarchical").params(scene)))
     flat = compare_images(image, ref, pixels, coverage=coverage)
-    assert np.all(np.array(m["mare_band"]) < np.array(flat["mare_band"])), (m["mare_band"], flat["mare_band"])
+    assert m["mare_band"][0] < 0.6 * flat["mare_band"][0], (m["mare_band"], flat["mare_band"])
+    np.testing.assert_allclose(m["mare_band"][1:], flat["mare_band"][1:], atol=0.002)
