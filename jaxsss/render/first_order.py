@@ -32,8 +32,8 @@ object's geometry"), before -> after: ketchup 0.083 / 0.042 / 0.044 -> **0.046 /
 last committed scene over the 5% goal), terminator band 0.089 / 0.109 / 0.094 -> 0.058 / 0.046 / 0.063; skin1 0.036 /
 0.034 / 0.036 -> 0.033 / 0.022 / 0.022; skin1 under a sphere light 0.041 / 0.036 / 0.037 -> 0.035 / 0.027 / 0.027;
 held-out chicken1 0.077 / 0.069 / 0.067 -> 0.075 / 0.045 / 0.039 (blue's band 0.159 -> 0.072) and potato 0.056 /
-0.049 / 0.046 -> 0.055 / 0.048 / 0.033. What is left is red's dark side (+5% ketchup, +9-10% chicken1 at cos -0.3
-to -0.1): the orders >= 2 on a half-space's geometry.
+0.049 / 0.046 -> 0.055 / 0.048 / 0.033. What is left is red around the terminator, too bright (ketchup +4 to +6%,
+chicken1 +6 to +10% at cos -0.3 to 0.3): the orders >= 2 on a half-space's geometry.
 """
 
 from __future__ import annotations
