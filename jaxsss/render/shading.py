@@ -210,7 +210,7 @@ def shading_points(scene, geometry, plan, resolution, pixel_mask, n_channels: in
     if plan.single_scattering or plan.specular:
         q_light = light_field(scene.lights, q_pos, q_normal, geometry if plan.shadows else None)
     march = None
-    if getattr(plan, "first_order", False):
+    if plan.first_order:
         from jaxsss.render.first_order import first_order_paths
 
         march = first_order_paths(scene, geometry, q_pos, q_normal, to_eye, n_channels, seed=scene.render.seed)
