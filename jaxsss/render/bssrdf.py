@@ -889,6 +889,9 @@ def white_kernel(medium: Medium, sources: WhiteSources, mus: tuple = (1.0,) + KE
     load_white_family()
     kernel = _white_kernel(medium, sources, mus, shift)
     if first_order:
+        if sources.g != 0.0 or sources.n != 1.0:
+            raise ValueError(f"white_kernel(first_order=True) needs g = 0 and eta = 1 (the orders >= 2's share and exit "
+                             f"are isotropic, index-matched scattering's); got g={sources.g!r}, eta={sources.n!r}")
         kernel = multiple_orders(kernel, medium, tuple(mus))
     if passage is not None:
         if not shift:
@@ -922,7 +925,8 @@ the entry, at strong absorption), the orders >= 2 keep this share of the profile
 @eqx.filter_jit
 def multiple_orders(kernel: WhiteKernel, medium: Medium, mus: tuple) -> WhiteKernel:
     """``kernel`` with each node's profile less the half-space's first order at its cosine: ``R_k - R1_k``
-    (:func:`jaxsss.render.first_order.first_order_profile`), index-matched.
+    (:func:`jaxsss.render.first_order.first_order_profile`), index-matched, isotropic scattering (``g = 0``; checked
+    by :func:`white_kernel`).
 
     The white tables are Monte Carlo estimates: at strong absorption (ketchup's blue, albedo 0.02) nearly all of
     ``R`` is first order, and ``R - R1`` is noise of either sign. It is floored at :data:`MULTIPLE_FLOOR` ``R`` and
@@ -937,9 +941,8 @@ def multiple_orders(kernel: WhiteKernel, medium: Medium, mus: tuple) -> WhiteKer
     rho = GRID_RHO_MIN * 10.0 ** (np.arange(n_grid) / GRID_PER_DECADE)
     sigma_a = jnp.broadcast_to(jnp.asarray(medium.sigma_a, kernel.sigma_s.dtype), kernel.sigma_s.shape)
     albedo = kernel.sigma_s / (sigma_a + kernel.sigma_s)
-    g = 0.0 if medium.g is None else float(np.asarray(medium.g))
     r = jnp.exp(kernel.log_R)  # (K, G, C), optical units
-    r1 = jnp.stack([first_order_profile(rho, mu, albedo, g) for mu in mus])
+    r1 = jnp.stack([first_order_profile(rho, mu, albedo) for mu in mus])
     # The share of the orders >= 2 in the half-space's reflectance at each node, (K, 1, C).
     cos = jnp.asarray(mus)[:, None]
     total = directional_albedo(cos, albedo)

@@ -184,6 +184,10 @@ def test_the_kernel_keeps_the_orders_above_the_first():
     h = 1e-5
     fd = (float(f(0.061 + h)) - float(f(0.061 - h))) / (2 * h)
     np.testing.assert_allclose(float(jax.grad(f)(0.061)), fd, rtol=1e-4)
+    # Only isotropic, index-matched tables: the share and the exit are that case's.
+    mus_g, tables_g = B.white_tables(0.9, 1.0, oblique=True)
+    with pytest.raises(ValueError, match="first_order=True.*g=0.9"):
+        B.white_kernel(dataclasses.replace(medium, g=jnp.asarray(0.9)), tables_g, mus_g, shift=True, first_order=True)
 
 
 def test_the_plan_marches_the_first_order_where_it_can():
