@@ -49,6 +49,7 @@ import numpy as np
 
 from jaxsss._config import to_device
 from jaxsss.medium import Medium
+from jaxsss.phase import hg_phase
 
 __all__ = ["AREA_SAMPLES", "FIRST_ORDER_LIGHTS", "MARCH_NODES", "MARCH_S_MIN", "FirstOrderPaths",
            "first_order_paths", "first_order_profile", "first_order_radiance", "first_order_total"]
@@ -193,9 +194,7 @@ def first_order_radiance(medium: Medium, paths: FirstOrderPaths):
     g = 0.0 if medium.g is None else medium.g
     sigma_s = medium.sigma_s_prime / (1.0 - g)
     sigma_t = medium.sigma_a + sigma_s
-    c = paths.cos[..., None]
-    # Henyey-Greenstein phase function.
-    phase = (1.0 - g * g) / (4.0 * jnp.pi * (1.0 + g * g - 2.0 * g * c) ** 1.5)
+    phase = hg_phase(paths.cos[..., None], g)
     # L1 = int sigma_s p E exp(-sigma_t (s + t_l)) ds.
     decay = jnp.exp(-sigma_t * (paths.s[..., None, None] + paths.t_light[..., None]))
     inner = jnp.sum(phase * paths.irradiance * decay, axis=2)  # (Q, N, C)
@@ -226,7 +225,7 @@ def _first_order_shape(mu: float, g: float) -> tuple[np.ndarray, np.ndarray]:
         dy = x * np.sin(phi)[None, :, None]
         d = np.sqrt(dx * dx + dy * dy + pz * pz)
         c = (sn * dx - mu * pz) / d  # the incident direction . the way out
-        phase = (1.0 - g * g) / (4.0 * np.pi * (1.0 + g * g - 2.0 * g * c) ** 1.5)
+        phase = np.asarray(hg_phase(c, g))
         # Interaction at s, scattering towards the exit point, escape: exp(-s) p exp(-d) cos_exit / d^2.
         f = np.exp(-s - d) * phase * pz / d**3
         out[j0:j0 + 8] = np.mean(np.sum(f * ws, axis=-1), axis=-1)

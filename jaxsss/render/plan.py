@@ -251,17 +251,17 @@ def _first_order(scene, kernel: str, indirect: bool) -> tuple[bool, str]:
     g = 0.0 if medium.g is None else float(np.max(np.asarray(medium.g)))
     eta = float(np.max(np.asarray(medium.eta)))
     other = [light.kind for light in scene.lights if light.kind not in FIRST_ORDER_LIGHTS]
+    kept = "the white profile's half-space first order is kept"
     if kernel != "white-oblique":
         return False, f"the {kernel} kernel keeps the half-space's first order"
     if eta != 1.0 or g != 0.0:
         return False, (f"eta = {eta:g}, g = {g:g}: marched only at an index-matched boundary with isotropic "
-                       "scattering (eta = 1, g = 0); the white profile's half-space first order is kept")
+                       f"scattering (eta = 1, g = 0); {kept}")
     if other:
-        return False, f"a {other[0]} light is not marched; the white profile's half-space first order is kept"
+        return False, f"a {other[0]} light is not marched; {kept}"
     if indirect:
-        return False, ("indirect light (occluders' or the object's own bounce) enters the profiles only; the white "
-                       "profile's half-space first order is kept")
+        return False, f"indirect light (occluders' or the object's own bounce) enters the profiles only; {kept}"
     if scene.material.texture is not None:
-        return False, "the texture scales the profiles' entry only; the white profile's half-space first order is kept"
+        return False, f"the texture scales the profiles' entry only; {kept}"
     return True, ("marched along each view ray inside, the light's path to each point traced (eta = 1, g = 0); the "
                   "white profiles keep orders >= 2 and leave by Chandrasekhar's multiple-scattering exit")
