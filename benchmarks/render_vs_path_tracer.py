@@ -50,13 +50,13 @@ ROOT = Path(__file__).resolve().parents[1]
 REFERENCES = ROOT / "tests" / "export" / "references"
 NAME = "render_vs_path_tracer"
 SCENES = ("skin1_sphere", "g09_sphere", "skin1_sphere_env", "marble_teapot", "skin1_sphere_env13", "ketchup_sphere",
-          "skin1_sphere_arealight")
+          "skin1_sphere_arealight", "chicken1_sphere")
 FIT_VIEWS = ("skin1_sphere_zoom",)
 """References made with ``--references`` for fits only (notebooks/render_and_fit.ipynb), not benchmarked: the skin1
 sphere through a narrow lens at its terminator, a second view in which the diffusion blur spans many pixels."""
 REFERENCE_SPP = {"skin1_sphere": 8192, "g09_sphere": 24576, "skin1_sphere_env": 65536, "marble_teapot": 16384,
                  "skin1_sphere_env13": 32768, "ketchup_sphere": 8192, "skin1_sphere_zoom": 32768,
-                 "skin1_sphere_arealight": 8192}
+                 "skin1_sphere_arealight": 8192, "chicken1_sphere": 8192}
 REFERENCE_SEEDS = (0, 1)  # two halves, averaged; their difference measures the reference's noise
 LLVM_CANDIDATES = ("/usr/lib/x86_64-linux-gnu/libLLVM-19.so", "/usr/lib/x86_64-linux-gnu/libLLVM.so.19.1")
 ERROR_METRIC = "max over RGB of mean |relative error| over lit fully covered pixels vs the Mitsuba reference"

@@ -34,7 +34,6 @@ import sys
 import time
 from pathlib import Path
 
-import jax.numpy as jnp
 import numpy as np
 
 from benchmarks._harness import make_row, parse_args, time_call, write_results

@@ -50,8 +50,8 @@ curvature axis is the fraction ``u = kappa / kappa_cap(d)`` of the largest curva
 distance, on nodes ``u_j = 1 - (1 - j / (N - 1))^2`` (:func:`curvature_coordinate`): the cap ``2 / d`` is then the
 table's edge, not a kink inside it, and the nodes crowd towards the antipode, where ``C`` turns fastest. Against
 :func:`curvature_ratio` for skin1 (eta 1 and 1.4), ketchup and marble, sources at depth 1 and 0.1, chords 0.01-15 mm:
-within 1.5% wherever ``kappa d < 1.5`` (a chord spanning under 97 degrees of arc), within 7% beyond (one distance
-interval, where the cap changes from ``KAPPA_MAX_ZR sigma_t'`` to ``2 / d``; ``tests/render/test_curvature.py``;
+within 1.5% wherever ``kappa d < 1.5`` (a chord spanning under 97 degrees of arc), within 8.5% beyond (one distance
+interval, where the cap changes from ``KAPPA_MAX_ZR sigma_t'`` to ``2 / d``: 8.4% in skin1's red at the cap 0.15;
 docs/path_tracer.md, "The curvature ratio, tabulated").
 """
 
@@ -62,8 +62,13 @@ import jax.numpy as jnp
 __all__ = ["DEPTH_MIN", "KAPPA_MAX_ZR", "N_KAPPA", "curvature_coordinate", "curvature_ratio", "kappa_cap",
            "log_ratio_table", "pair_curvature"]
 
-KAPPA_MAX_ZR = 0.25
-"""The largest curvature the ratio uses, in units of ``sigma_t'`` (a sphere of radius at least ``4 l_u``)."""
+KAPPA_MAX_ZR = 0.15
+"""The largest curvature the ratio uses, in units of ``sigma_t'``: a sphere of radius at least ``6.7 l_u``. Diffusion's
+gain on a sphere only a few transport lengths across is too large for the orders >= 2 (the first order is marched in
+the geometry, :mod:`jaxsss.render.first_order`): against Mitsuba, chicken1's red and green (``a = 3.3`` and ``5.7
+l_u``) and ketchup's red (``4.9 l_u``) were 2.6-3.5% too bright in sum at 0.25, and within 2.3% at 0.15; media with
+``l_u`` under a seventh of the radius do not reach the cap (docs/path_tracer.md, "The curvature cap, re-measured with
+the first order marched")."""
 DEPTH_MIN = 0.05
 """The shallowest source the ratio places, in units of ``l_u``: a source on the surface itself would make both dipoles
 singular at ``d = 0`` (the nodes' own depths are at least 0.1)."""

@@ -3,7 +3,8 @@ image error grows.
 
 The scenes: skin1 (Jensen 2001) on a 20 mm sphere at eta = 1 under one point light (8192 spp, 1.1-1.9% per-pixel noise)
 and under a spherical area light, and at eta 1.3 and 1.4 under a sky; marble on the watertight teapot at eta 1 (16384
-spp); a g = 0.9 medium on the same sphere (24,576 spp). Ketchup's sphere is tested in tests/render/test_passage.py. The
+spp); a g = 0.9 medium on the same sphere (24,576 spp); chicken1 on it (8192 spp), a sphere only 3.3 transport
+lengths in radius in red. Ketchup's sphere is tested in tests/render/test_passage.py. The
 default kernel is ``white-oblique`` (jaxsss.render.bssrdf) with the curvature ratio of the pairs
 (jaxsss.render.curvature), the uncollided passage and the chord-bounded shift (jaxsss.render.passage), and at a
 dielectric boundary the refracted Chandrasekhar exit. Goals of issue 17: mare_lit <= 5% per channel, <= 15% in the
@@ -134,6 +135,27 @@ def test_skin1_under_a_sphere_light_against_its_path_traced_reference():
     assert result.report["plan"]["first_order"]
     assert np.all(np.array(m["mare_band"]) <= (0.072, 0.073, 0.083)), m["mare_band"]
     assert np.all(np.abs(np.array(m["sum_ratio"]) - 1.0) <= 0.02), m["sum_ratio"]
+
+
+def test_chicken1_a_sphere_few_transport_lengths_across_against_its_path_traced_reference():
+    """chicken1 on the same sphere under the point light (8192 spp, noise 1.8 / 1.3 / 1.4% per pixel): ``l_u`` 6.1 /
+    3.5 / 1.8 mm, so the sphere is 3.3 / 5.7 / 11 transport lengths in radius, where the curvature ratio's diffusion
+    gain is too large. Achieved (2026-11-28) with the ratio capped at ``6.7 l_u`` (``curvature.KAPPA_MAX_ZR`` 0.15):
+    mare_lit 0.054 / 0.030 / 0.029, band 0.044 / 0.036 / 0.052, sums 0.977 / 1.018 / 1.012; red's signed error -1.3 to
+    +0.5% at cos -0.3 to 0.1 (lit side -2.8%, far side +2%). At 0.25 (``4 l_u``, before): mare_lit 0.064 / 0.036 /
+    0.029, band 0.072 / 0.041 / 0.052, sums 1.035 / 1.032 / 1.012, red +6 to +10% at cos -0.3 to 0.1
+    (docs/path_tracer.md, "The curvature cap, re-measured with the first order marched"). Red misses the per-pixel goal
+    by its tilt. Bounds: achieved + 10% per pixel and in the band, the goal's 3% for the sums, red within 4% around
+    the terminator."""
+    scene, ref, coverage = reference("chicken1_sphere")
+    result = render(scene)
+    pixels = pixel_geometry(scene)
+    m = compare_images(result.image, ref, pixels, coverage=coverage)
+    assert np.all(np.array(m["mare_lit"]) <= (0.060, 0.05, 0.05)), m["mare_lit"]
+    assert np.all(np.array(m["mare_band"]) <= (0.049, 0.040, 0.058)), m["mare_band"]
+    assert np.all(np.abs(np.array(m["sum_ratio"]) - 1.0) <= 0.03), m["sum_ratio"]
+    around = error_by_cos(result.image, ref, pixels, coverage=coverage, edges=np.array([-0.3, 0.1]))[0]
+    assert around["n"] > 200 and abs(around["bias"][0]) <= 0.04, around
 
 
 @pytest.mark.parametrize("name", ["skin1_sphere_env13", "skin1_sphere_env"])

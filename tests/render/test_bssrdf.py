@@ -223,8 +223,10 @@ def curved_kernel():
 
 def test_the_curved_profile_is_the_profile_times_the_curvature_ratio(curved_kernel):
     """The bilinear table of log(R C) against the half-space profile times :func:`curvature_ratio` per node: within
-    1.5% for chords under 97 degrees of arc (``kappa d < 1.5``), 8% beyond (docs/path_tracer.md, "The curvature
-    ratio, tabulated"), and exactly the flat profile at ``kappa <= 0``."""
+    1.5% for chords under 97 degrees of arc (``kappa d < 1.5``), 9% beyond (docs/path_tracer.md, "The curvature
+    ratio, tabulated"), and exactly the flat profile at ``kappa <= 0``. Beyond is one distance interval: the cap's
+    kink at ``d = 2 / (KAPPA_MAX_ZR sigma_t')`` falls inside it. With the cap at 0.15 (2026-11-28) that is 17.4 mm in
+    skin1's red, ``kappa d`` about 2, and the largest error there is 8.4% (under 8% at the old cap of 0.25)."""
     kernel, medium = curved_kernel, _skin()
     rng = np.random.default_rng(3)
     d = np.exp(rng.uniform(np.log(0.01), np.log(25.0), 4000))
@@ -237,7 +239,7 @@ def test_the_curved_profile_is_the_profile_times_the_curvature_ratio(curved_kern
     err = np.abs(curved / (np.asarray(kernel.profile(r)) * ratio) - 1.0)
     arc = (kappa * d < 1.5)[:, None, None]
     assert np.max(np.where(arc, err, 0.0)) < 0.015, np.max(np.where(arc, err, 0.0))
-    assert np.max(err) < 0.08, np.max(err)
+    assert np.max(err) < 0.09, np.max(err)
     for flat in (0.0, -0.3):
         np.testing.assert_array_equal(kernel.profile(r, jnp.full((4000, 1, 1), flat)), kernel.profile(r))
 

@@ -106,10 +106,11 @@ def test_the_image_cancels_the_fluence_on_the_extrapolated_sphere():
 
 @pytest.mark.parametrize("depth", [1.0, 0.5, 0.1])
 def test_an_oblique_source_against_the_direct_form(depth):
-    """Ketchup's red channel (l_u = 4.1 mm) on the 20 mm sphere, its source ``depth l_u`` deep: the ratio equals the
-    radial flux of the direct (unstable) form of the same source and image over the planar dipole's (Jensen et al.
-    2001 Eq. 4, written out here) with the source at that depth."""
-    sa, ss, a = 0.061, 0.18, 20.0
+    """Ketchup's red channel (l_u = 4.1 mm) on a 30 mm sphere (7.2 l_u: under the cap ``KAPPA_MAX_ZR``), its source
+    ``depth l_u`` deep: the ratio equals the radial flux of the direct (unstable) form of the same source and image
+    over the planar dipole's (Jensen et al. 2001 Eq. 4, written out here) with the source at that depth."""
+    sa, ss, a = 0.061, 0.18, 30.0
+    assert 1 / a < KAPPA_MAX_ZR * (sa + ss)
     st = sa + ss
     z_r, z_b, s = depth / st, 2 / (3 * st), np.sqrt(3 * sa * st)
     d = np.array([0.7, 3.0, 9.0, 20.0])
