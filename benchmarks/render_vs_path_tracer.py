@@ -29,6 +29,10 @@ Outputs: ``render_vs_path_tracer.json`` / ``.png`` (error against seconds) and `
 own choice of kernel (hierarchical, the plan's eps), by the line through its two highest-spp rows and at ``1/sqrt(spp)``,
 and the ratios to jaxsss's seconds.
 
+The orders apart (``summary[scene]["order_split"]``, printed last): for a scene with a first-order reference
+(:data:`FIRST_ORDER_REFERENCES`: Mitsuba at ``max_depth = 2``, the light scattered once), jaxsss's marched first
+order against it and the rest of jaxsss's image (the orders >= 2) against the whole reference less it.
+
 ``--references`` regenerates the references instead (slow: minutes per scene at ``REFERENCE_SPP`` with the LLVM
 variant; run it under ``nice``). Mitsuba runs with ``llvm_ad_rgb`` when ``DRJIT_LIBLLVM_PATH`` names a libLLVM
 (default here: Debian's libLLVM 19 if present), else ``scalar_rgb``.
@@ -54,9 +58,13 @@ SCENES = ("skin1_sphere", "g09_sphere", "skin1_sphere_env", "marble_teapot", "sk
 FIT_VIEWS = ("skin1_sphere_zoom",)
 """References made with ``--references`` for fits only (notebooks/render_and_fit.ipynb), not benchmarked: the skin1
 sphere through a narrow lens at its terminator, a second view in which the diffusion blur spans many pixels."""
+FIRST_ORDER_REFERENCES = {"chicken1_sphere_first_order": "chicken1_sphere"}
+"""References of the light scattered once (Mitsuba at ``max_depth = 2``, eta = 1), by the scene they share: the
+reference for :mod:`jaxsss.render.first_order` alone (tests/export/test_compare_bssrdf.py), and with the whole
+reference the orders >= 2 by difference (docs/path_tracer.md, "The orders, path-traced apart")."""
 REFERENCE_SPP = {"skin1_sphere": 8192, "g09_sphere": 24576, "skin1_sphere_env": 65536, "marble_teapot": 16384,
                  "skin1_sphere_env13": 32768, "ketchup_sphere": 8192, "skin1_sphere_zoom": 32768,
-                 "skin1_sphere_arealight": 8192, "chicken1_sphere": 8192}
+                 "skin1_sphere_arealight": 8192, "chicken1_sphere": 8192, "chicken1_sphere_first_order": 32768}
 REFERENCE_SEEDS = (0, 1)  # two halves, averaged; their difference measures the reference's noise
 LLVM_CANDIDATES = ("/usr/lib/x86_64-linux-gnu/libLLVM-19.so", "/usr/lib/x86_64-linux-gnu/libLLVM.so.19.1")
 ERROR_METRIC = "max over RGB of mean |relative error| over lit fully covered pixels vs the Mitsuba reference"
@@ -85,12 +93,13 @@ def _llvm_env() -> None:
 
 
 def load_reference(name: str):
-    """``(scene, image (H, W, 3), coverage (H, W), sidecar dict)`` of a committed reference."""
+    """``(scene, image (H, W, 3), coverage (H, W), sidecar dict)`` of a committed reference (the scene its sidecar
+    names: a first-order reference shares its scene's)."""
     from jaxsss.render import load_scene
 
     data = np.load(REFERENCES / f"{name}.npz")
     meta = json.loads((REFERENCES / f"{name}.json").read_text())
-    return (load_scene(REFERENCES / f"{name}.toml"), data["image"].astype(np.float64),
+    return (load_scene(REFERENCES / meta["scene"]), data["image"].astype(np.float64),
             data["coverage"].astype(np.float64), meta)
 
 
@@ -127,10 +136,12 @@ def make_reference(name: str) -> dict:
     if name in SKIES:
         file, make = SKIES[name]
         np.save(REFERENCES / file, make())
-    scene = load_scene(REFERENCES / f"{name}.toml")
+    scene_name = FIRST_ORDER_REFERENCES.get(name, name)
+    max_depth = 2 if name in FIRST_ORDER_REFERENCES else -1
+    scene = load_scene(REFERENCES / f"{scene_name}.toml")
     variant = xm.select_variant()
     spp = REFERENCE_SPP[name]
-    halves = [xm.render_mitsuba(scene, spp=spp // 2, seed=s) for s in REFERENCE_SEEDS]
+    halves = [xm.render_mitsuba(scene, spp=spp // 2, seed=s, max_depth=max_depth) for s in REFERENCE_SEEDS]
     t0 = time.perf_counter()
     coverage = xm.object_coverage(scene, spp=1024, seed=7)
     coverage_seconds = time.perf_counter() - t0
@@ -139,10 +150,10 @@ def make_reference(name: str) -> dict:
     # the variance of the average, and their difference twice that of one half).
     noise = compare_images(halves[0].image, halves[1].image, pixel_geometry(scene), coverage=coverage)
     meta = {
-        "scene": f"{name}.toml",
-        "command": f"nice -n 10 python {shlex.join(['benchmarks/render_vs_path_tracer.py', '--references'])}",
+        "scene": f"{scene_name}.toml",
+        "command": f"nice -n 10 python {shlex.join(['benchmarks/render_vs_path_tracer.py', '--references', name])}",
         "renderer": "mitsuba", "mitsuba_version": mi.__version__, "variant": variant,
-        "integrator": "volpathmis (jaxsss.export.mitsuba.scene_dict)", "spp": spp,
+        "integrator": "volpathmis (jaxsss.export.mitsuba.scene_dict)", "max_depth": max_depth, "spp": spp,
         "seeds": list(REFERENCE_SEEDS), "spp_per_seed": spp // 2,
         "seconds": sum(h.seconds for h in halves), "load_seconds": sum(h.load_seconds for h in halves),
         "coverage_spp": 1024, "coverage_seconds": coverage_seconds,
@@ -180,6 +191,24 @@ def _jaxsss_rows(name, scene, ref, coverage, pixels, settings):
                              max(warm["wall"] - warm["compile"], 1e-9), c["compile"], scene=name, renderer="jaxsss",
                              bssrdf=bssrdf, first_call_seconds=max(c["wall"] - c["compile"], 1e-9), **m))
     return rows, images
+
+
+def order_split(scene, ref, coverage, pixels, first_ref) -> dict:
+    """jaxsss's default render split into the marched first order and the rest (the orders >= 2), each against its
+    path-traced part: ``first_ref`` (Mitsuba at ``max_depth = 2``) and ``ref - first_ref``."""
+    from jaxsss.export.compare import compare_images, error_by_cos
+    from jaxsss.render import render
+
+    result = render(scene)
+    first = result.prepared.state.first_order_image(scene.material.medium)
+    if first is None:
+        return {"first_order": None, "why": "the plan does not march the first order"}
+    first, image = np.asarray(first), np.asarray(result.image)
+    keep = ("mare_lit", "mare_binned", "sum_ratio")
+    one = compare_images(first, first_ref, pixels, coverage=coverage)
+    rest = compare_images(image - first, ref - first_ref, pixels, coverage=coverage)
+    return {"first_order": {k: one[k] for k in keep}, "orders_2_up": {k: rest[k] for k in keep},
+            "orders_2_up_by_cos": error_by_cos(image - first, ref - first_ref, pixels, coverage=coverage)}
 
 
 def _mitsuba_rows(name, scene, ref, coverage, pixels, spps):
@@ -288,7 +317,7 @@ def main(argv=None) -> int:
     if argv is None:
         argv = sys.argv[1:]
     if "--references" in argv:
-        for name in [a for a in argv if a in SCENES + FIT_VIEWS] or SCENES:
+        for name in [a for a in argv if a in SCENES + FIT_VIEWS + tuple(FIRST_ORDER_REFERENCES)] or SCENES:
             meta = make_reference(name)
             print(f"{name}: {meta['spp']} spp, {meta['variant']}, {meta['seconds']:.1f} s, "
                   f"noise {np.round(meta['noise_mare_lit'], 4).tolist()}")
@@ -319,6 +348,10 @@ def main(argv=None) -> int:
                              row, [r for r in rows if r["scene"] == name and r["renderer"] == "mitsuba"])},
                          "jaxsss_error_by_cos": {label: error_by_cos(img, ref, pixels, coverage=coverage)
                                                  for label, img in images.items()}}
+    for first_name, name in FIRST_ORDER_REFERENCES.items():
+        scene, ref, coverage, _ = load_reference(name)
+        first_ref = load_reference(first_name)[1]
+        summary[name]["order_split"] = order_split(scene, ref, coverage, pixel_geometry(scene), first_ref)
     notes = [f"Mitsuba {variant}; references: tests/export/references/*.json",
              "seconds: both renderers after one warm-up render per scene: jaxsss the whole render (plan, pass 1, tree, "
              "pass 2; first_call_seconds: the warm-up without compilation), Mitsuba mi.render"]
@@ -345,6 +378,11 @@ def main(argv=None) -> int:
         print(f"{name}: {q['setting']} error {q['error']:.3f} in {q['seconds']:.2f} s; Mitsuba at equal error "
               f"{q['mitsuba_seconds']:.1f} s (slope {q['slope']:.2f}): {q['ratio']:.1f}x, at 1/sqrt(spp) "
               f"{q['mitsuba_seconds_sqrt']:.1f} s: {q['ratio_sqrt']:.1f}x")
+    for name in FIRST_ORDER_REFERENCES.values():
+        split = summary[name]["order_split"]
+        for part in ("first_order", "orders_2_up"):
+            if split.get(part):
+                print(f"{name} {part}: " + "; ".join(f"{k} {rnd(v)}" for k, v in split[part].items()))
     print(f"wrote {json_path}, {png_path}, {maps}")
     return 0
 

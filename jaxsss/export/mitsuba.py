@@ -234,7 +234,7 @@ def medium_dict(medium) -> dict:
 
 
 def scene_dict(scene, mesh_files: dict[str, str], *, spp: int = DEFAULT_SPP, seed: int = 0,
-               coverage: bool = False) -> dict:
+               coverage: bool = False, max_depth: int = -1) -> dict:
     """The Mitsuba scene as a plain dict (``to_world`` values are :class:`LookAt`; see :func:`to_mitsuba_dict`).
 
     Args:
@@ -247,6 +247,11 @@ def scene_dict(scene, mesh_files: dict[str, str], *, spp: int = DEFAULT_SPP, see
         coverage: instead of the lit scene, a mask render: the object is an area light of radiance 1 seen by a
             ``direct`` integrator, occluders black, no lights; each pixel is then the fraction of it covered by
             the object (box filter).
+        max_depth: the integrator's longest path, -1 (unbounded) or >= 2. Crossings of an index-matched boundary
+            (``null`` BSDF) do not count, so at ``eta = 1`` ``max_depth = 2`` is the light scattered exactly once
+            inside the object (plus the occluders' direct light): the reference for
+            :mod:`jaxsss.render.first_order` (tests/export, ``chicken1_sphere_first_order``). At a dielectric
+            boundary each refraction counts as a bounce.
 
     Raises:
         ExportError: a key the export cannot represent (see :func:`jaxsss.export.support.check_exportable`).
@@ -256,6 +261,8 @@ def scene_dict(scene, mesh_files: dict[str, str], *, spp: int = DEFAULT_SPP, see
         raise ValueError(f"spp={spp!r} is outside the allowed range [1, inf)")
     if int(seed) < 0:
         raise ValueError(f"seed={seed!r} is outside the allowed range [0, inf)")
+    if int(max_depth) != -1 and int(max_depth) < 2:
+        raise ValueError(f"max_depth={max_depth!r} is outside the allowed values: -1 (unbounded) or [2, inf)")
     cam = scene.camera
     width, height = (int(v) for v in cam.resolution)
     extent = float(np.max(scene.mesh.extents))
@@ -266,8 +273,8 @@ def scene_dict(scene, mesh_files: dict[str, str], *, spp: int = DEFAULT_SPP, see
     else:
         m = medium_arrays(scene.material.medium)
         albedo = np.divide(m["sigma_s"], m["sigma_t"], out=np.zeros(3), where=m["sigma_t"] > 0)
-        d["integrator"] = {"type": "volpathmis", "max_depth": -1, "rr_depth": rr_depth(float(albedo.max())),
-                           "hide_emitters": False}
+        d["integrator"] = {"type": "volpathmis", "max_depth": int(max_depth),
+                           "rr_depth": rr_depth(float(albedo.max())), "hide_emitters": False}
         if not scene.mesh.is_watertight:
             warnings.warn(f"mesh ({scene.mesh_description}) is not watertight: Mitsuba's medium lives between the "
                           "surface crossings of each path, so light leaks through the holes and the interior is ill "
@@ -358,17 +365,19 @@ class MitsubaRender(NamedTuple):
     seed: int
 
 
-def load(scene, *, spp: int = DEFAULT_SPP, seed: int = 0, coverage: bool = False):
-    """A loaded ``mi.Scene`` (the current variant; meshes go through a temporary directory)."""
+def load(scene, *, spp: int = DEFAULT_SPP, seed: int = 0, coverage: bool = False, max_depth: int = -1):
+    """A loaded ``mi.Scene`` (the current variant; meshes go through a temporary directory; arguments as
+    :func:`scene_dict`'s)."""
     import mitsuba as mi
 
     with tempfile.TemporaryDirectory(prefix="jaxsss_mitsuba_") as tmp:
         files = _write_files(scene, tmp, relative=False)
-        return mi.load_dict(to_mitsuba_dict(scene_dict(scene, files, spp=spp, seed=seed, coverage=coverage)))
+        return mi.load_dict(to_mitsuba_dict(scene_dict(scene, files, spp=spp, seed=seed, coverage=coverage,
+                                                          max_depth=max_depth)))
 
 
 def render_mitsuba(scene, *, spp: int, seed: int = 0, variant: str | None = None,
-                   coverage: bool = False) -> MitsubaRender:
+                   coverage: bool = False, max_depth: int = -1) -> MitsubaRender:
     """Render a jaxsss scene with Mitsuba 3 in-process.
 
     Args:
@@ -377,6 +386,8 @@ def render_mitsuba(scene, *, spp: int, seed: int = 0, variant: str | None = None
         seed: sampler seed, >= 0.
         variant: a Mitsuba variant to set first (default: keep the current one, else :func:`select_variant`).
         coverage: render the object's coverage mask instead (see :func:`scene_dict`).
+        max_depth: the longest path, -1 (unbounded) or >= 2 (2 at ``eta = 1``: single scattering; see
+            :func:`scene_dict`).
     """
     import mitsuba as mi
 
@@ -385,7 +396,7 @@ def render_mitsuba(scene, *, spp: int, seed: int = 0, variant: str | None = None
     elif mi.variant() is None:
         select_variant()
     t0 = time.perf_counter()
-    loaded = load(scene, spp=spp, seed=seed, coverage=coverage)
+    loaded = load(scene, spp=spp, seed=seed, coverage=coverage, max_depth=max_depth)
     load_seconds = time.perf_counter() - t0
     t0 = time.perf_counter()
     image = np.array(mi.render(loaded, spp=int(spp), seed=int(seed)), dtype=np.float64)

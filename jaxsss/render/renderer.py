@@ -26,6 +26,7 @@ from jaxsss.render.bssrdf import (albedo_correction, exit_model_for, exit_weight
                                   surface_tangents, white_kernel, white_tables)
 from jaxsss.render.passage import PASSAGE_FLOOR, cut_matters, interaction_probability, truncated_travel, view_chords
 from jaxsss.render.camera import camera_frame
+from jaxsss.render.first_order import first_order_radiance
 from jaxsss.render.methods import Preparation, register_method
 from jaxsss.render.octree import build_octree
 from jaxsss.render.pairs import BLOCK_PAIRS, PairLists, near_radius, pair_info, pair_lists
@@ -240,6 +241,15 @@ class Prepared(ReflectingPoints):
         this ``Prepared``'s arrays as arguments, so a second call with the same shapes does not recompile)."""
         return _image(self, medium)
 
+    def first_order_image(self, medium: Medium):
+        """The first scattering order marched in the object (:mod:`jaxsss.render.first_order`) alone, plus the
+        constant image (background and occluders), ``(H, W, C)``; ``None`` when the plan did not march it
+        (:attr:`jaxsss.render.plan.ScenePlan.first_order`). Its path-traced counterpart is Mitsuba at ``max_depth =
+        2`` (:func:`jaxsss.export.mitsuba.render_mitsuba`)."""
+        if self.first_order is None:
+            return None
+        return _first_order_image(self, medium)
+
 
 
 def irradiance_pass(scene, plan: ScenePlan):
@@ -401,6 +411,11 @@ def prepare(scene, *, method: str | None = None, eps: float | None = None, resol
 @render_jit
 def _image(prepared: Prepared, medium: Medium):
     return prepared.image_from_radiance(prepared.radiance_from_diffusion(medium, prepared.diffusion_radiance(medium)))
+
+
+@render_jit
+def _first_order_image(prepared: Prepared, medium: Medium):
+    return prepared.image_from_radiance(first_order_radiance(medium, prepared.first_order))
 
 
 def _registered(method: str):

@@ -202,3 +202,6 @@ def test_refusals(tmp_path):
         xm.scene_dict(cases["environment"], {})
     with pytest.raises(ValueError, match=r"spp=0 is outside the allowed range \[1, inf\)"):
         xm.scene_dict(scene, {"object": "x.ply"}, spp=0)
+    with pytest.raises(ValueError, match=r"max_depth=1 is outside the allowed values: -1 \(unbounded\) or \[2, inf\)"):
+        xm.scene_dict(scene, {"object": "x.ply"}, max_depth=1)
+    assert xm.scene_dict(scene, {"object": "x.ply"}, max_depth=2)["integrator"]["max_depth"] == 2
