@@ -76,6 +76,11 @@ Exit by distance (exit model ``"distance"``: ``eta = 1``, ``g = 0``). Light that
 paths leaves less grazing than the half-space's whole exit ``X``: the sums carry each node's exitance weighted by a
 tabulated amplitude ``c(d)`` too, which leaves by ``X phi(mu_o)`` (:mod:`jaxsss.render.exit_distance`).
 
+The exit on a curved surface (exit model ``"multiple-curved"``: the first order marched apart, the kernel holding the
+orders >= 2). A convex surface's light leaves less grazing than a half-space's: the sums carry each node's exitance
+weighted by an amplitude ``c(kappa l_u, d / l_u)`` of the pair's curvature and distance too, which leaves by ``X_2
+phi(mu_o)`` (:mod:`jaxsss.render.exit_curvature`).
+
 Which kernel a scene gets is the scene plan's decision (:func:`choose_bssrdf`): ``white-oblique`` for every ``g <
 FORWARD_G`` and ``eta`` in the family's range, the dipole with its reason otherwise (``g >= FORWARD_G``, ``eta`` or
 ``g`` outside the family, or per channel). The oblique tables are looked up by :func:`white_table` only.
@@ -602,6 +607,10 @@ class WhiteKernel(eqx.Module):
     # The exit by distance (None: off): sigma_t' (C,) and the amplitude table c (K, D, C); the sums then carry 2K
     # nodes, each node's exitance then its exitance weighted by c(d) (jaxsss.render.exit_distance).
     exit_split: tuple | None = None
+    # The exit on a curved surface (None: off; the orders >= 2 only): sigma_t' (C,) and the amplitude's bilinear
+    # cells (jaxsss.render.exit_curvature.curved_amplitude_cells); the sums then carry 2K nodes, each node's exitance
+    # then its exitance weighted by c(kappa, d).
+    exit_curved: tuple | None = None
     # The near field's mean flux density weighted by w R instead of w (a profile without the first order's peak:
     # :func:`multiple_orders`; :meth:`near_terms`).
     profile_weighted_near: bool = eqx.field(static=True, default=False)
@@ -645,33 +654,49 @@ class WhiteKernel(eqx.Module):
         k, c = flux_shape[-2:]
         if weighted:
             return (c,)
-        return (2 * k, c) if self.exit_split is not None else (k, c)
+        return (2 * k, c) if self.split else (k, c)
 
-    def _amplitude(self, delta):
-        """``(P, K, C)``: the exit-by-distance amplitude ``c(d)`` at the pairs' distance ``d`` from the (unshifted)
-        entry (:func:`jaxsss.render.exit_distance.amplitude_at`)."""
-        from jaxsss.render.exit_distance import amplitude_at
+    @property
+    def split(self) -> bool:
+        """Whether the sums carry a second exitance per node: the exit by distance or on a curved surface."""
+        return self.exit_split is not None or self.exit_curved is not None
 
-        sigma_t_prime, table = self.exit_split
+    def _amplitude(self, delta, normals=None):
+        """``(P, K, C)``: the second exit's amplitude per pair. By distance: ``c(d)`` at the pairs' distance ``d``
+        from the (unshifted) entry (:func:`jaxsss.render.exit_distance.amplitude_at`). On a curved surface: ``c(kappa
+        l_u, d / l_u)`` at the pair's curvature from ``normals = (n_x, n_P)`` (0 without them;
+        :func:`jaxsss.render.exit_curvature.curved_amplitude_at`)."""
         d = jnp.sqrt(jnp.maximum(jnp.sum(delta * delta, axis=-1), 1e-300))[:, None, None]
-        return amplitude_at(table, d * sigma_t_prime)
+        if self.exit_split is not None:
+            from jaxsss.render.exit_distance import amplitude_at
 
-    def _split(self, v, delta):
-        """``(P, K, C)`` -> ``(P, 2K, C)``: each node's ``v`` then ``c(d) v`` (:meth:`_amplitude`); unchanged without
+            sigma_t_prime, table = self.exit_split
+            return amplitude_at(table, d * sigma_t_prime)
+        from jaxsss.render.exit_curvature import curved_amplitude_at
+
+        sigma_t_prime, cells = self.exit_curved
+        if normals is None:
+            return jnp.zeros(d.shape[:1] + cells.shape[2:4], cells.dtype)
+        # The pair's curvature in transport lengths (concave pairs: a plane's exit).
+        kappa = jnp.maximum(pair_curvature(delta, normals[0][:, :3], normals[1]), 0.0)[:, None, None]
+        return curved_amplitude_at(cells, kappa / sigma_t_prime, d * sigma_t_prime)
+
+    def _split(self, v, delta, normals=None):
+        """``(P, K, C)`` -> ``(P, 2K, C)``: each node's ``v`` then ``c v`` (:meth:`_amplitude`); unchanged without
         the split."""
-        if self.exit_split is None:
+        if not self.split:
             return v
-        return jnp.concatenate([v, self._amplitude(delta) * v], axis=1)
+        return jnp.concatenate([v, self._amplitude(delta, normals) * v], axis=1)
 
-    def _radiance(self, v, delta, weights):
-        """``(P, C)``: the pairs' node values ``v`` ``(P, K, C)`` as radiance, ``sum_k v_k (W_k + c_k(d) W_K+k)``
-        with the shaded points' exit ``weights`` ``(P, J, C)`` (:func:`exit_weights`; ``J = K`` without the split).
-        Each ``v_k`` is used once: with the split's two uses XLA computed the whole pair twice (skin1's far sum took
-        1.8x as long)."""
+    def _radiance(self, v, delta, weights, normals=None):
+        """``(P, C)``: the pairs' node values ``v`` ``(P, K, C)`` as radiance, ``sum_k v_k (W_k + c_k W_K+k)`` with
+        the shaded points' exit ``weights`` ``(P, J, C)`` (:func:`exit_weights`; ``J = K`` without the split) and
+        the amplitude ``c`` of :meth:`_amplitude`. Each ``v_k`` is used once: with the split's two uses XLA computed
+        the whole pair twice (skin1's far sum took 1.8x as long)."""
         k = v.shape[1]
-        if self.exit_split is None:
+        if not self.split:
             return jnp.sum(v * weights, axis=1)
-        return jnp.sum(v * (weights[:, :k] + self._amplitude(delta) * weights[:, k:]), axis=1)
+        return jnp.sum(v * (weights[:, :k] + self._amplitude(delta, normals) * weights[:, k:]), axis=1)
 
     def sources(self, flux):
         """What the sums gather per entity, from its flux: with a shift, ``(E, 4, K, C)`` incident flux ``F_k`` and
@@ -766,9 +791,9 @@ class WhiteKernel(eqx.Module):
         v = self._curved(r, delta, normals) * f
         view = self._view_kept(delta, normals)  # (P, 1, C) or 1
         if weights is None:
-            return self._split(v * view, delta)
+            return self._split(v * view, delta, normals)
         # The eye's cut after the sum over the nodes (it is the same for all of them).
-        return self._radiance(v, delta, weights) * (view[:, 0] if jnp.ndim(view) else view)
+        return self._radiance(v, delta, weights, normals) * (view[:, 0] if jnp.ndim(view) else view)
 
     def near_terms(self, delta, sources, area, rho0, normals=None, weights=None):
         """A near pair's ``(point, w F, w A)``, each ``(P, K, C)``, with the near-field weight at the distance from
@@ -788,7 +813,8 @@ class WhiteKernel(eqx.Module):
         w = near_weight(r, rho0)
         curved = self._curved(r, delta, normals)
         point = (1.0 - w) * curved * f
-        point = self._split(point, delta) if weights is None else self._radiance(point, delta, weights)
+        point = (self._split(point, delta, normals) if weights is None
+                 else self._radiance(point, delta, weights, normals))
         # The disc's mean flux density: weighted by w, or by w R where R has no first-order peak (a kink in the light
         # within rho_0, a point light's terminator, is then where the profile puts it).
         q = w * curved if self.profile_weighted_near else w
@@ -810,13 +836,16 @@ class WhiteKernel(eqx.Module):
             sigma_t_prime, table = self.exit_split
             c = amplitude_at(table, r[:, None, None] * sigma_t_prime)
             return jnp.concatenate([jnp.sum(f, axis=0), jnp.sum(c * f, axis=0)])
+        if self.exit_curved is not None:
+            # On a curved surface the disc leaves as on a plane (c = 0 within rho_0: jaxsss.render.exit_curvature).
+            return jnp.concatenate([jnp.sum(f, axis=0), jnp.zeros_like(f[0])])
         return jnp.sum(f, axis=0)
 
     def disc(self, spread, rho0):
         """``(Q, K, C)``: ``E_k I_w,k`` for the near field's mean incident flux density ``spread`` ``(Q, K, C)``
         (``(Q, 2K, C)``, then the ``c(d)``-weighted parts, with the exit by distance)."""
         wd = self.weighted_disc(rho0)
-        if self.exit_split is None:
+        if not self.split:
             return spread * wd
         k = spread.shape[1]
         return jnp.concatenate([spread * wd[:k], spread * wd[k:]], axis=1)
@@ -870,7 +899,7 @@ def _log(x):
 
 def white_kernel(medium: Medium, sources: WhiteSources, mus: tuple = (1.0,) + KERNEL_MUS,
                  shift: bool = False, curvature: bool = False, passage: float | None = None,
-                 exit_split: bool = False, first_order: bool = False) -> WhiteKernel:
+                 exit_split: bool = False, first_order: bool = False, exit_curved: bool = False) -> WhiteKernel:
     """Tabulate the profiles at incidence cosines ``mus`` (1, then the oblique nodes of ``sources``, from
     :func:`white_tables`) for ``medium`` on the grid (differentiable in ``sigma_a`` and ``sigma_s'``): normal incidence
     from the white Monte Carlo family, oblique nodes from ``sources`` (module docstring). ``shift``: shift the
@@ -882,7 +911,9 @@ def white_kernel(medium: Medium, sources: WhiteSources, mus: tuple = (1.0,) + KE
     this distance (the samples' spacing), and the flux two more rows (:meth:`WhiteKernel.sources`); None: off.
     ``exit_split``: the sums carry each node's exitance and its ``c(d)``-weighted part
     (:mod:`jaxsss.render.exit_distance`). ``first_order``: the profiles keep orders >= 2 only (the renderer marches
-    the first in the object's geometry, :mod:`jaxsss.render.first_order`; :func:`multiple_orders`)."""
+    the first in the object's geometry, :mod:`jaxsss.render.first_order`; :func:`multiple_orders`). ``exit_curved``
+    (with ``first_order``): the sums carry each node's exitance and its part weighted by the curved-exit amplitude
+    ``c(kappa, d)`` of the pair (:mod:`jaxsss.render.exit_curvature`)."""
     from jaxsss.mc.white_family import load_white_family
     from jaxsss.render.passage import passage_cells, passage_loss_table
 
@@ -910,6 +941,17 @@ def white_kernel(medium: Medium, sources: WhiteSources, mus: tuple = (1.0,) + KE
         amplitude = distance_amplitude(mus, jnp.broadcast_to(medium.alpha_prime, c))
         kernel = eqx.tree_at(lambda k: k.exit_split, kernel,
                              (jnp.broadcast_to(medium.sigma_a + medium.sigma_s_prime, c), amplitude),
+                             is_leaf=lambda x: x is None)
+    if exit_curved:
+        from jaxsss.render.exit_curvature import curved_amplitude, curved_amplitude_cells
+
+        if not first_order or exit_split:
+            raise ValueError("white_kernel(exit_curved=True) needs first_order=True and exit_split=False (the table is "
+                             "the orders >= 2's, and the sums carry one second exit)")
+        c = kernel.sigma_s.shape
+        cells = curved_amplitude_cells(curved_amplitude(mus, jnp.broadcast_to(medium.alpha_prime, c)))
+        kernel = eqx.tree_at(lambda k: k.exit_curved, kernel,
+                             (jnp.broadcast_to(medium.sigma_a + medium.sigma_s_prime, c), cells),
                              is_leaf=lambda x: x is None)
     if not curvature:
         return kernel
@@ -1035,7 +1077,9 @@ def exit_radiance_nodes(medium: Medium, exitance, cos_o, mus, model: str, azimut
     distance amplitude ``c(d)``, leaving by ``X`` and ``X phi``
     (:func:`jaxsss.render.exit_distance.exit_split_distribution`).
     ``"multiple"`` (index-matched, ``g = 0``, the first order marched apart: :mod:`jaxsss.render.first_order`): the
-    orders >= 2 only, by :func:`multiple_exit_distribution`.
+    orders >= 2 only, by :func:`multiple_exit_distribution`. ``"multiple-curved"``: the same with ``exitance`` ``(Q,
+    2K, C)``, each node's exitance and its part weighted by the curved-exit amplitude, leaving by ``X_2`` and ``X_2
+    phi`` (:func:`jaxsss.render.exit_curvature.curved_exit_distribution`).
     ``"anisotropic"`` (index-matched, ``g > 0``): the same with the Monte Carlo exit distribution of a
     forward-scattering half-space, which depends on the azimuth between the light's travel and the view
     (:func:`jaxsss.render.exit_direction.anisotropic_exit_distribution`; ``azimuth`` ``(Q, H - 1)`` its
@@ -1074,6 +1118,10 @@ def exit_weights(medium: Medium, cos_o, mus, model: str, n_nodes: int, n_channel
         x = exit_split_distribution(mu_o, mus, albedo)
     elif model == "multiple":
         x = multiple_exit_distribution(mu_o, jnp.asarray(mus), albedo)
+    elif model == "multiple-curved":
+        from jaxsss.render.exit_curvature import curved_exit_distribution
+
+        x = curved_exit_distribution(mu_o, mus, albedo)
     else:
         x = exit_distribution(mu_o, jnp.asarray(mus), albedo)
     # Exit by Chandrasekhar's reflection function, node by node.

@@ -264,4 +264,5 @@ def _first_order(scene, kernel: str, indirect: bool) -> tuple[bool, str]:
     if scene.material.texture is not None:
         return False, f"the texture scales the profiles' entry only; {kept}"
     return True, ("marched along each view ray inside, the light's path to each point traced (eta = 1, g = 0); the "
-                  "white profiles keep orders >= 2 and leave by Chandrasekhar's multiple-scattering exit")
+                  "white profiles keep orders >= 2 and leave by Chandrasekhar's multiple-scattering exit, less "
+                  "grazing where the surface curves (jaxsss.render.exit_curvature)")

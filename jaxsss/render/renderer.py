@@ -120,7 +120,7 @@ class Prepared(ReflectingPoints):
                     g = 0.0 if medium.g is None else medium.g
                     irradiance = irradiance * interaction_probability(
                         self.light_chord, medium.sigma_a + medium.sigma_s_prime / (1.0 - g))
-            index_matched = ("chandrasekhar", "distance", "anisotropic", "multiple")
+            index_matched = ("chandrasekhar", "distance", "anisotropic", "multiple", "multiple-curved")
             if self.bssrdf_exit in index_matched and len(self.bssrdf_mus) > 1:
                 # Index-matched: the node mix reflects Chandrasekhar's exact total at every incidence cosine (for
                 # g > 0 the isotropic equivalent's: its curve in mu has the same shape within a few per cent). With
@@ -151,7 +151,9 @@ class Prepared(ReflectingPoints):
         return white_kernel(medium, self.bssrdf_tables, self.bssrdf_mus, shift=shift,
                             curvature=self.ent_normal is not None,
                             passage=PASSAGE_FLOOR * self.rho0 if self.passage_cut else None,
-                            exit_split=self.bssrdf_exit == "distance", first_order=self.bssrdf_exit == "multiple")
+                            exit_split=self.bssrdf_exit == "distance",
+                            first_order=self.bssrdf_exit in ("multiple", "multiple-curved"),
+                            exit_curved=self.bssrdf_exit == "multiple-curved")
 
     @property
     def normals(self):
@@ -186,7 +188,7 @@ class Prepared(ReflectingPoints):
         shaded points (:func:`jaxsss.render.bssrdf.exit_weights`), or None for the dipole."""
         if self.exit_nodes is None:
             return None
-        n_nodes = len(self.bssrdf_mus) * (2 if self.bssrdf_exit == "distance" else 1)
+        n_nodes = len(self.bssrdf_mus) * (2 if self.bssrdf_exit in ("distance", "multiple-curved") else 1)
         n_channels = jnp.broadcast_shapes(self.light_irradiance.shape[-1:], jnp.shape(medium.sigma_a)[-1:])[0]
         return exit_weights(medium, self.cos_o, *self.exit_nodes, n_nodes, n_channels, self.exit_azimuth)
 
@@ -292,8 +294,8 @@ def assemble_prepared(scene, plan: ScenePlan, samples, tree, shading: ShadingPoi
         mus, tables = white_tables(0.0 if medium.g is None else float(medium.g), float(medium.eta),
                                    oblique=plan.bssrdf == "white-oblique")
         # The first order marched in the geometry (plan.first_order): the profiles keep orders >= 2 and leave by
-        # their own exit distribution.
-        exit_model = "multiple" if shading.first_order is not None else exit_model_for(medium)
+        # their own exit distribution, less grazing on a curved surface (jaxsss.render.exit_curvature).
+        exit_model = "multiple-curved" if shading.first_order is not None else exit_model_for(medium)
         if plan.bssrdf == "white-oblique":
             tangent = to_device(surface_tangents(samples.light.to_light[order], samples.normals[order],
                                                  float(medium.eta)))

@@ -1,5 +1,6 @@
-"""A pencil beam into an index-matched isotropic half-space: the analogue walk behind the renderer's small transport
-tables (:mod:`jaxsss.render.passage`'s cut beam, :mod:`jaxsss.render.exit_distance`'s exit by distance).
+"""A pencil beam into an index-matched isotropic half-space or sphere: the analogue walk behind the renderer's small
+transport tables (:mod:`jaxsss.render.passage`'s cut beam, :mod:`jaxsss.render.exit_distance`'s exit by distance,
+:mod:`jaxsss.render.exit_curvature`'s exit on a curved surface).
 
 Units of the mean free path (``sigma_t = 1``); isotropic scattering (``g = 0``) at an index-matched boundary (every
 photon that reaches the surface leaves); absorption by weight (``albedo`` per interaction) and roulette below a weight
@@ -32,25 +33,45 @@ def roulette(rng: np.random.Generator, w: np.ndarray) -> np.ndarray:
     return alive
 
 
-def pencil_beam_walk(albedo: float, mu_i: float, photons: int, seed: int, tally) -> None:
+def pencil_beam_walk(albedo: float, mu_i: float, photons: int, seed: int, tally, *, radius: float | None = None,
+                     min_order: int = 1) -> None:
     """Walk ``photons`` photons entering at the origin along ``(sin theta_i, 0, -mu_i)`` and call ``tally(first,
     exit_point, direction, weight)`` with each batch that leaves: their first flight's length ``(M,)``, where they
-    cross the surface ``(M, 3)`` (``z = 0``), their direction ``(M, 3)`` and weight ``(M,)``."""
+    cross the surface ``(M, 3)``, their direction ``(M, 3)`` and weight ``(M,)``.
+
+    ``radius`` (mean free paths): a sphere of that radius centred at ``(0, 0, -radius)`` (its surface touches the
+    plane ``z = 0`` at the entry, with the same outward normal there) instead of the half-space ``z < 0``; the outward
+    normal at an exit point ``p`` is then ``(p - c) / radius``. ``min_order``: tally only photons that have
+    interacted at least that many times (every photon still inside has interacted equally often: one interaction
+    per step); the default 1 leaves out the light that crosses a sphere uncollided."""
     rng = np.random.default_rng(seed)
     pos = np.zeros((photons, 3))
     d = np.tile([np.sqrt(1.0 - mu_i * mu_i), 0.0, -mu_i], (photons, 1))
     w = np.ones(photons)
+    centre = None if radius is None else np.array([0.0, 0.0, -float(radius)])
     first = None
+    order = 0  # interactions so far, the same for every photon still inside
     while len(w):
         step = -np.log(rng.random(len(w)))
         first = step if first is None else first
         new = pos + step[:, None] * d
-        out = new[:, 2] > 0.0  # the first flight points down: it never leaves
-        if out.any():
+        if centre is None:
+            out = new[:, 2] > 0.0  # the first flight points down: it never leaves
+        else:
+            rel = new - centre
+            out = np.einsum("ij,ij->i", rel, rel) > radius * radius
+        if out.any() and order >= min_order:
             p, v = pos[out], d[out]
-            tally(first[out], p - (p[:, 2] / v[:, 2])[:, None] * v, v, w[out])
+            if centre is None:
+                t = -p[:, 2] / v[:, 2]
+            else:  # where the flight crosses the sphere
+                q = p - centre
+                b = np.einsum("ij,ij->i", q, v)
+                t = -b + np.sqrt(np.maximum(b * b - (np.einsum("ij,ij->i", q, q) - radius * radius), 0.0))
+            tally(first[out], p + t[:, None] * v, v, w[out])
         keep = ~out
         pos, w, first = new[keep], w[keep] * albedo, first[keep]
+        order += 1
         d = isotropic_directions(rng, len(w))
         alive = roulette(rng, w)
         pos, d, w, first = pos[alive], d[alive], w[alive], first[alive]

@@ -146,18 +146,19 @@ def chicken1():
 
 def test_chicken1_a_sphere_few_transport_lengths_across_against_its_path_traced_reference(chicken1):
     """chicken1 on the same sphere under the point light (8192 spp, noise 1.8 / 1.3 / 1.4% per pixel): ``l_u`` 6.1 /
-    3.5 / 1.8 mm, so the sphere is 3.3 / 5.7 / 11 transport lengths in radius, where the curvature ratio's diffusion
-    gain is too large. Achieved (2026-11-28) with the ratio capped at ``6.7 l_u`` (``curvature.KAPPA_MAX_ZR`` 0.15):
-    mare_lit 0.054 / 0.030 / 0.029, band 0.044 / 0.036 / 0.052, sums 0.977 / 1.018 / 1.012; red's signed error -1.3 to
-    +0.5% at cos -0.3 to 0.1 (lit side -2.8%, far side +2%). At 0.25 (``4 l_u``, before): mare_lit 0.064 / 0.036 /
-    0.029, band 0.072 / 0.041 / 0.052, sums 1.035 / 1.032 / 1.012, red +6 to +10% at cos -0.3 to 0.1
-    (docs/path_tracer.md, "The curvature cap, re-measured with the first order marched"). Red misses the per-pixel goal
-    by its tilt. Bounds: achieved + 10% per pixel and in the band, the goal's 3% for the sums, red within 4% around
+    3.5 / 1.8 mm, so the sphere is 3.3 / 5.7 / 11 transport lengths in radius. Achieved (2026-11-28, night) with the
+    orders >= 2 leaving less grazing on the curved surface (jaxsss.render.exit_curvature): mare_lit 0.034 / 0.032 /
+    0.029, band 0.029 / 0.038 / 0.053, sums 0.993 / 1.024 / 1.013. Before it (the half-space's exit): mare_lit 0.054 /
+    0.030 / 0.029, band 0.044 / 0.036 / 0.052, sums 0.977 / 1.018 / 1.012, red -3.5% near the normal and +2 to +3%
+    on the dark side; with the curvature ratio capped at ``4 l_u`` instead of ``6.7 l_u`` (``curvature.KAPPA_MAX_ZR``
+    0.25): 0.064 / 0.036 / 0.029, sums 1.035 / 1.032 / 1.012 (docs/path_tracer.md, "The exit on a curved surface" and
+    "The curvature cap, re-measured with the first order marched"). Bounds: the goal per pixel (5%), the band at the
+    achieved level + 10% (the half-space's exit fails red's: 0.044), the goal's 3% for the sums, red within 4% around
     the terminator."""
     scene, ref, coverage, pixels, result = chicken1
     m = compare_images(result.image, ref, pixels, coverage=coverage)
-    assert np.all(np.array(m["mare_lit"]) <= (0.060, 0.05, 0.05)), m["mare_lit"]
-    assert np.all(np.array(m["mare_band"]) <= (0.049, 0.040, 0.058)), m["mare_band"]
+    assert np.all(np.array(m["mare_lit"]) <= 0.05), m["mare_lit"]
+    assert np.all(np.array(m["mare_band"]) <= (0.032, 0.042, 0.058)), m["mare_band"]
     assert np.all(np.abs(np.array(m["sum_ratio"]) - 1.0) <= 0.03), m["sum_ratio"]
     around = error_by_cos(result.image, ref, pixels, coverage=coverage, edges=np.array([-0.3, 0.1]))[0]
     assert around["n"] > 200 and abs(around["bias"][0]) <= 0.04, around
@@ -169,9 +170,10 @@ def test_chicken1_first_order_alone_against_the_path_traced_single_scattering(ch
     0.2% in 4 x 4 sums): its error is the reference's noise. Achieved (2026-11-28): mare_lit 0.0115 / 0.0079 / 0.0089,
     4 x 4 0.0028 / 0.0022 / 0.0028, sums 1.0009 / 1.0008 / 1.0008, signed error within 0.1% on the lit side (cos >
     0.3). The rest of the image, the orders >= 2 from the white kernel, against the whole reference less this one:
-    sums 0.962 / 1.036 / 1.027, lit side (cos 0.3-1) -3 to -4% / +4 to +5% / +3 to +4%: chicken1's remaining error is
-    theirs (docs/path_tracer.md, "The orders, path-traced apart"). Bounds: per pixel 1.3x the reference's noise, 4 x
-    4 0.5%, sums 0.5%; the orders >= 2's sums within their achieved 3.8% + 10%."""
+    mare_lit 0.054 / 0.069 / 0.073, sums 0.987 / 1.049 / 1.029 (with the half-space's exit: 0.089 / 0.065 / 0.073,
+    sums 0.962 / 1.036 / 1.027): chicken1's remaining error is theirs (docs/path_tracer.md, "The orders, path-traced
+    apart", "The exit on a curved surface"). Bounds: per pixel 1.3x the reference's noise, 4 x 4 0.5%, sums 0.5%; the
+    orders >= 2's red per pixel at 0.06 (the half-space's exit fails it), their sums within 4.9% + 10%."""
     scene, ref, coverage, pixels, result = chicken1
     data = np.load(REFERENCES / "chicken1_sphere_first_order.npz")
     ref1 = data["image"].astype(np.float64)
@@ -181,7 +183,8 @@ def test_chicken1_first_order_alone_against_the_path_traced_single_scattering(ch
     assert np.all(np.array(m["mare_binned"]) <= 0.005), m["mare_binned"]
     assert np.all(np.abs(np.array(m["sum_ratio"]) - 1.0) <= 0.005), m["sum_ratio"]
     rest = compare_images(np.asarray(result.image) - first, ref - ref1, pixels, coverage=coverage)
-    assert np.all(np.abs(np.array(rest["sum_ratio"]) - 1.0) <= 0.042), rest["sum_ratio"]
+    assert rest["mare_lit"][0] <= 0.06, rest["mare_lit"]
+    assert np.all(np.abs(np.array(rest["sum_ratio"]) - 1.0) <= 0.054), rest["sum_ratio"]
 
 
 @pytest.mark.parametrize("name", ["skin1_sphere_env13", "skin1_sphere_env"])

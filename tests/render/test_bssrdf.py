@@ -488,8 +488,8 @@ def test_the_sums_radiance_is_the_node_exitances_exit(method, first_order):
     """Invariant: the image's diffusion radiance, summed pair by pair through the shaded points' exit weights
     (:meth:`Prepared.diffusion_radiance`), is the node exitances (:meth:`Prepared.exitance`) leaving by
     :func:`exit_radiance_nodes`: with the exit by distance (eta 1, g 0: ``2K`` node rows), and with the first order
-    marched apart (the orders >= 2 by their own exit: ``K`` rows); each method with one of them (the sums share
-    ``near_terms`` and ``pair``, so the four pairings add only time)."""
+    marched apart (the orders >= 2 by their own exit on a curved surface: ``2K`` rows too); each method with one of
+    them (the sums share ``near_terms`` and ``pair``, so the four pairings add only time)."""
     from jaxsss.render.plan import make_plan
 
     scene = _scene({"sigma_a": [0.05, 0.1, 0.2], "sigma_s_prime": [1.1, 1.5, 2.0], "eta": 1.0})
@@ -497,10 +497,10 @@ def test_the_sums_radiance_is_the_node_exitances_exit(method, first_order):
     assert plan.first_order
     prepared, plan, _ = prepare(scene, plan=plan._replace(first_order=first_order))
     assert plan.bssrdf == "white-oblique"
-    assert prepared.bssrdf_exit == ("multiple" if first_order else "distance")
+    assert prepared.bssrdf_exit == ("multiple-curved" if first_order else "distance")
     medium = scene.material.medium
     exitance = prepared.exitance(medium)
-    rows = len(prepared.bssrdf_mus) * (1 if first_order else 2)
+    rows = len(prepared.bssrdf_mus) * 2
     assert exitance.shape == (prepared.n_queries, rows, 3)
     nodes = bssrdf.exit_radiance_nodes(medium, exitance, prepared.cos_o, *prepared.exit_nodes)
     np.testing.assert_allclose(np.asarray(prepared.diffusion_radiance(medium)), np.asarray(nodes), rtol=1e-10,
