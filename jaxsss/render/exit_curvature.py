@@ -166,16 +166,10 @@ def load_exit_curvature_table() -> dict:
 
 def _node_rows(name: str, mus, albedo):
     """``(K, C, ...)``: table ``name`` at the incidence nodes ``mus``, linear in the albedos ``(C,)``."""
-    from jaxsss.render.passage import node_interval
+    from jaxsss.render.exit_distance import node_rows
 
-    missing = [m for m in mus if float(m) not in CURVED_MUS]
-    if missing:
-        raise ValueError(f"exit_curvature: mus {missing} have no curved-exit table; it has {CURVED_MUS}")
-    tab = jnp.asarray(load_exit_curvature_table()[name][[CURVED_MUS.index(float(m)) for m in mus]])  # (K, A, ...)
-    i, t = node_interval(jnp.atleast_1d(albedo), CURVED_ALBEDO)
-    t = t.reshape((1, -1) + (1,) * (tab.ndim - 2))
-    # Linear in the albedo.
-    return tab[:, i] * (1.0 - t) + tab[:, i + 1] * t
+    return node_rows(load_exit_curvature_table()[name], CURVED_MUS, CURVED_ALBEDO, mus, albedo,
+                     "exit_curvature (curved exit)")
 
 
 def curved_amplitude(mus, albedo) -> jnp.ndarray:

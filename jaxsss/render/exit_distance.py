@@ -34,7 +34,7 @@ import jax.numpy as jnp
 import numpy as np
 
 __all__ = ["SPLIT_ALBEDO", "SPLIT_D", "SPLIT_MUS", "amplitude_at", "distance_amplitude", "exit_split_distribution",
-           "fit_exit_distance", "generate_exit_distance_table", "load_exit_distance_table"]
+           "fit_exit_distance", "generate_exit_distance_table", "load_exit_distance_table", "node_rows"]
 
 SPLIT_MUS = (1.0, 0.75, 0.5, 0.25, 0.1)
 """Incidence cosines of the table (the kernels' nodes are among them)."""
@@ -133,18 +133,26 @@ def load_exit_distance_table() -> dict:
         return {k: f[k] for k in f.files}
 
 
-def _node_rows(name: str, mus, albedo):
-    """``(K, C, ...)``: table ``name`` at the incidence nodes ``mus``, linear in the albedos ``(C,)``."""
-    missing = [m for m in mus if float(m) not in SPLIT_MUS]
-    if missing:
-        raise ValueError(f"exit_distance: mus {missing} have no exit-by-distance table; it has {SPLIT_MUS}")
-    tab = jnp.asarray(load_exit_distance_table()[name][[SPLIT_MUS.index(float(m)) for m in mus]])  # (K, A, ...)
+def node_rows(table, table_mus, table_albedo, mus, albedo, what: str):
+    """``(K, C, ...)``: a ``(U, A, ...)`` ``table`` over incidence nodes ``table_mus`` and albedos ``table_albedo``, at
+    the incidence nodes ``mus`` (each one of ``table_mus``; else a ValueError naming ``what``), linear in the albedos
+    ``(C,)`` (held beyond the ends; differentiable in ``albedo``)."""
     from jaxsss.render.passage import node_interval
 
-    i, t = node_interval(jnp.atleast_1d(albedo), SPLIT_ALBEDO)
+    missing = [m for m in mus if float(m) not in table_mus]
+    if missing:
+        raise ValueError(f"{what}: mus {missing} have no table; it has {tuple(table_mus)}")
+    tab = jnp.asarray(table[[tuple(table_mus).index(float(m)) for m in mus]])  # (K, A, ...)
+    i, t = node_interval(jnp.atleast_1d(albedo), table_albedo)
     t = t.reshape((1, -1) + (1,) * (tab.ndim - 2))
     # Linear in the albedo.
     return tab[:, i] * (1.0 - t) + tab[:, i + 1] * t
+
+
+def _node_rows(name: str, mus, albedo):
+    """``(K, C, ...)``: table ``name`` at the incidence nodes ``mus``, linear in the albedos ``(C,)``."""
+    return node_rows(load_exit_distance_table()[name], SPLIT_MUS, SPLIT_ALBEDO, mus, albedo,
+                     "exit_distance (exit by distance)")
 
 
 def distance_amplitude(mus, albedo) -> jnp.ndarray:
