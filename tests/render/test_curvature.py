@@ -23,6 +23,10 @@ from tests.gradcheck import assert_grad_matches_fd
 
 SKIN1_A = np.array([0.032, 0.17, 0.48])
 SKIN1_S = np.array([0.74, 0.88, 1.01])
+# The table jitted (one program each, kept by the persistent cache): op by op, its tests compiled every primitive, 10-12
+# s per test.
+_jit_table = jax.jit(log_ratio_table)
+_jit_table_grad = jax.jit(jax.grad(lambda p, r, A, depth: jnp.sum(log_ratio_table(r, p[:1], p[1:], A, depth))))
 
 
 def _A(eta):
@@ -208,14 +212,14 @@ def test_the_table_holds_the_ratio_at_its_nodes():
     r = np.geomspace(0.01, 40.0, 23)[:, None] * np.array([1.0, 1.3, 0.7])  # (G, C)
     depth = np.array([[1.0, 1.0, 1.0], [0.5, 0.5, 0.5], [0.1, 0.2, 0.3]])
     A = _A(1.4)
-    table = np.asarray(log_ratio_table(jnp.asarray(r), SKIN1_A, SKIN1_S, A, jnp.asarray(depth)))
+    table = np.asarray(_jit_table(jnp.asarray(r), SKIN1_A, SKIN1_S, A, jnp.asarray(depth)))
     assert table.shape == (3, 23, N_KAPPA, 3)
     np.testing.assert_array_equal(table[:, :, 0], 0.0)
     j = np.arange(N_KAPPA)
     u = 1 - (1 - j / (N_KAPPA - 1)) ** 2
     kappa = u[:, None] * np.asarray(kappa_cap(r, SKIN1_A + SKIN1_S))[:, None, :]  # (G, N, C)
     for k in range(3):
-        direct = np.asarray(curvature_ratio(r[:, None, :], kappa, SKIN1_A, SKIN1_S, A, depth[k]))
+        direct = np.asarray(jax.jit(curvature_ratio)(r[:, None, :], kappa, SKIN1_A, SKIN1_S, A, depth[k]))
         np.testing.assert_allclose(table[k], np.log(direct), atol=1e-12)
     np.testing.assert_allclose(curvature_coordinate(kappa, r[:, None, :], SKIN1_A + SKIN1_S),
                                np.broadcast_to(j[:, None], kappa.shape), atol=1e-9)
@@ -229,13 +233,13 @@ def test_the_table_holds_the_ratio_at_its_nodes():
 
 @pytest.mark.parametrize("sa, ss, A", [(0.0, 1.0, 1.0), (1e-9, 1e4, 3.0), (1e3, 1e-3, 1.0), (1e-4, 1e-4, 2.0)])
 def test_the_table_is_finite_for_extreme_media(sa, ss, A):
-    r = np.geomspace(1e-6, 1e3, 30)[:, None]
-    depth = np.array([[1.0], [0.1]])
-    table = np.asarray(log_ratio_table(jnp.asarray(r), jnp.array([sa]), jnp.array([ss]), jnp.array([A]), depth))
+    r = jnp.asarray(np.geomspace(1e-6, 1e3, 30)[:, None])
+    depth = jnp.array([[1.0], [0.1]])
+    table = np.asarray(_jit_table(r, jnp.array([sa]), jnp.array([ss]), jnp.array([A]), depth))
     assert np.all(np.isfinite(table)), table
-    g = jax.grad(lambda p: jnp.sum(log_ratio_table(jnp.asarray(r), p[:1], p[1:], jnp.array([A]), depth)))(
-        jnp.array([sa, ss]))
+    g = _jit_table_grad(jnp.array([sa, ss]), r, jnp.array([A]), depth)
     assert np.all(np.isfinite(np.asarray(g))), g
+
 
 
 @pytest.fixture(scope="module")
