@@ -1,6 +1,7 @@
 """The exit on a curved surface (jaxsss.render.exit_curvature): the sphere walk, reference values, shapes, bad and
 extreme input, invariants and autodiff; the curved kernel keeps the flat one's exitance."""
 
+import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
@@ -13,6 +14,13 @@ from jaxsss.render.exit_curvature import (CURVED_ALBEDO, CURVED_D, CURVED_KAPPA,
                                           load_exit_curvature_table)
 from jaxsss.render.walk import pencil_beam_walk
 from tests.gradcheck import assert_grad_matches_fd
+
+# The table's functions jitted (one program each, kept by the persistent cache; the incidence nodes static): op by
+# op, the first test to call them compiled every primitive (9 s).
+_amplitude = jax.jit(curved_amplitude, static_argnums=0)
+_cells = jax.jit(curved_amplitude_cells)
+_at = jax.jit(curved_amplitude_at)
+_exit = jax.jit(curved_exit_distribution, static_argnums=1)
 
 
 def _tally(albedo, mu_i, radius, photons=4000, seed=3, min_order=1):
@@ -52,12 +60,12 @@ def test_a_small_sphere_leaves_less_grazing():
     positivity clip holds ``c`` back); on a plane (``kappa = 0``) nothing changes; the amplitude grows with the
     curvature and with the distance."""
     assert CURVED_ALBEDO[3] == 0.9 and CURVED_MUS[0] == 1.0
-    table = curved_amplitude_cells(curved_amplitude((1.0,), jnp.array([0.9])))
+    table = _cells(_amplitude((1.0,), jnp.array([0.9])))
     kappa = jnp.array([0.0, 1.0 / 16.0, 1.0 / 3.3, 1.0 / 3.3])[:, None, None]
     d = jnp.array([5.0, 5.0, 5.0, 0.25])[:, None, None]
-    c = np.asarray(curved_amplitude_at(table, kappa, d))[:, 0, 0]
+    c = np.asarray(_at(table, kappa, d))[:, 0, 0]
     assert c[0] == 0.0 and 0.0 < c[1] < c[2] and c[3] < c[2]
-    x = np.asarray(curved_exit_distribution(jnp.array([0.05, 0.95]), (1.0,), jnp.array([0.9])))[:, :, 0]
+    x = np.asarray(_exit(jnp.array([0.05, 0.95]), (1.0,), jnp.array([0.9])))[:, :, 0]
     grazing, normal = 1.0 + c[2] * x[0, 1] / x[0, 0], 1.0 + c[2] * x[1, 1] / x[1, 0]
     assert grazing < 0.5 and normal > 1.2, (grazing, normal)
 
@@ -78,22 +86,22 @@ def test_cells_reproduce_the_table_at_its_nodes():
     """The kernel's uniform cells (:func:`curved_amplitude_cells`) against the table at its own nodes: every distance
     node lies on the grid; between the curvature nodes the grid cuts the kinks of the piecewise-linear table (0.007
     of an amplitude up to 0.4 at kappa l_u = 1 / 16)."""
-    table = curved_amplitude((1.0, 0.5, 0.1), jnp.array([0.75, 0.9]))
+    table = _amplitude((1.0, 0.5, 0.1), jnp.array([0.75, 0.9]))
     n_k, n_d = len(CURVED_KAPPA), len(CURVED_D)
     kappa = jnp.repeat(jnp.asarray(CURVED_KAPPA), n_d)[:, None, None] * jnp.ones((1, 1, 2))
     d = jnp.tile(jnp.asarray(CURVED_D), n_k)[:, None, None] * jnp.ones((1, 1, 2))
-    c = np.asarray(curved_amplitude_at(curved_amplitude_cells(table), kappa, d)).reshape(n_k, n_d, 3, 2)
+    c = np.asarray(_at(_cells(table), kappa, d)).reshape(n_k, n_d, 3, 2)
     np.testing.assert_allclose(c, np.asarray(table), atol=0.01)
     np.testing.assert_allclose(c[0], 0.0, atol=1e-15)
 
 
 def test_shapes_and_bad_input():
-    x = curved_exit_distribution(jnp.linspace(0.0, 1.0, 7), (1.0, 0.5, 0.1), jnp.array([0.2, 0.7, 0.999]))
+    x = _exit(jnp.linspace(0.0, 1.0, 7), (1.0, 0.5, 0.1), jnp.array([0.2, 0.7, 0.999]))
     assert x.shape == (7, 6, 3) and np.all(np.isfinite(np.asarray(x)))
-    table = curved_amplitude((1.0, 0.5, 0.1), jnp.array([0.2, 0.999]))
+    table = _amplitude((1.0, 0.5, 0.1), jnp.array([0.2, 0.999]))
     assert table.shape == (len(CURVED_KAPPA), len(CURVED_D), 3, 2)
     ones = jnp.ones((1, 1, 2))
-    c = curved_amplitude_at(curved_amplitude_cells(table), jnp.array([0.0, 0.1, 10.0])[:, None, None] * ones,
+    c = _at(_cells(table), jnp.array([0.0, 0.1, 10.0])[:, None, None] * ones,
                             jnp.array([0.0, 1.0, 1e6])[:, None, None] * ones)
     assert c.shape == (3, 3, 2) and np.all(np.isfinite(np.asarray(c)))
     with pytest.raises(ValueError, match="mus"):
