@@ -241,7 +241,6 @@ def test_the_table_is_finite_for_extreme_media(sa, ss, A):
     assert np.all(np.isfinite(np.asarray(g))), g
 
 
-
 @pytest.fixture(scope="module")
 def sphere_prepared():
     from jaxsss.render import load_scene, prepare

@@ -102,7 +102,7 @@ def test_shapes_and_bad_input():
     assert table.shape == (len(CURVED_KAPPA), len(CURVED_D), 3, 2)
     ones = jnp.ones((1, 1, 2))
     c = _at(_cells(table), jnp.array([0.0, 0.1, 10.0])[:, None, None] * ones,
-                            jnp.array([0.0, 1.0, 1e6])[:, None, None] * ones)
+            jnp.array([0.0, 1.0, 1e6])[:, None, None] * ones)
     assert c.shape == (3, 3, 2) and np.all(np.isfinite(np.asarray(c)))
     with pytest.raises(ValueError, match="mus"):
         curved_exit_distribution(jnp.array([0.5]), (0.3,), jnp.array([0.5]))
