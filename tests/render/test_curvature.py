@@ -26,6 +26,7 @@ SKIN1_S = np.array([0.74, 0.88, 1.01])
 # The table jitted (one program each, kept by the persistent cache): op by op, its tests compiled every primitive, 10-12
 # s per test.
 _jit_table = jax.jit(log_ratio_table)
+_jit_ratio = jax.jit(curvature_ratio)
 _jit_table_grad = jax.jit(jax.grad(lambda p, r, A, depth: jnp.sum(log_ratio_table(r, p[:1], p[1:], A, depth))))
 
 
@@ -219,7 +220,7 @@ def test_the_table_holds_the_ratio_at_its_nodes():
     u = 1 - (1 - j / (N_KAPPA - 1)) ** 2
     kappa = u[:, None] * np.asarray(kappa_cap(r, SKIN1_A + SKIN1_S))[:, None, :]  # (G, N, C)
     for k in range(3):
-        direct = np.asarray(jax.jit(curvature_ratio)(r[:, None, :], kappa, SKIN1_A, SKIN1_S, A, depth[k]))
+        direct = np.asarray(_jit_ratio(r[:, None, :], kappa, SKIN1_A, SKIN1_S, A, depth[k]))
         np.testing.assert_allclose(table[k], np.log(direct), atol=1e-12)
     np.testing.assert_allclose(curvature_coordinate(kappa, r[:, None, :], SKIN1_A + SKIN1_S),
                                np.broadcast_to(j[:, None], kappa.shape), atol=1e-9)
