@@ -11,7 +11,7 @@ from __future__ import annotations
 
 import numpy as np
 
-__all__ = ["isotropic_directions", "pencil_beam_walk", "roulette"]
+__all__ = ["isotropic_directions", "pencil_beam_walk", "roulette", "walk_photons"]
 
 
 def isotropic_directions(rng: np.random.Generator, n: int) -> np.ndarray:
@@ -47,13 +47,21 @@ def pencil_beam_walk(albedo: float, mu_i: float, photons: int, seed: int, tally,
     rng = np.random.default_rng(seed)
     pos = np.zeros((photons, 3))
     d = np.tile([np.sqrt(1.0 - mu_i * mu_i), 0.0, -mu_i], (photons, 1))
-    w = np.ones(photons)
     centre = None if radius is None else np.array([0.0, 0.0, -float(radius)])
-    first = None
+    walk_photons(rng, pos, d, albedo, tally, centre=centre, radius=radius, min_order=min_order)
+
+
+def walk_photons(rng: np.random.Generator, pos: np.ndarray, d: np.ndarray, albedo: float, tally, *,
+                 centre=None, radius: float | None = None, min_order: int = 1, payload=None) -> None:
+    """The walk itself: photons at ``pos`` ``(N, 3)`` on the surface, heading inwards along ``d`` ``(N, 3)``, in the
+    half-space ``z < 0`` (``centre`` None) or the sphere of ``radius`` about ``centre`` (mean free paths). Calls
+    ``tally(payload, exit_point, direction, weight)`` with each batch that leaves after at least ``min_order``
+    interactions; ``payload`` ``(N,)`` is carried with each photon (None: its first flight's length)."""
+    w = np.ones(len(pos))
     order = 0  # interactions so far, the same for every photon still inside
     while len(w):
         step = -np.log(rng.random(len(w)))
-        first = step if first is None else first
+        payload = step if payload is None else payload
         new = pos + step[:, None] * d
         if centre is None:
             out = new[:, 2] > 0.0  # the first flight points down: it never leaves
@@ -68,10 +76,10 @@ def pencil_beam_walk(albedo: float, mu_i: float, photons: int, seed: int, tally,
                 q = p - centre
                 b = np.einsum("ij,ij->i", q, v)
                 t = -b + np.sqrt(np.maximum(b * b - (np.einsum("ij,ij->i", q, q) - radius * radius), 0.0))
-            tally(first[out], p + t[:, None] * v, v, w[out])
+            tally(payload[out], p + t[:, None] * v, v, w[out])
         keep = ~out
-        pos, w, first = new[keep], w[keep] * albedo, first[keep]
+        pos, w, payload = new[keep], w[keep] * albedo, payload[keep]
         order += 1
         d = isotropic_directions(rng, len(w))
         alive = roulette(rng, w)
-        pos, d, w, first = pos[alive], d[alive], w[alive], first[alive]
+        pos, d, w, payload = pos[alive], d[alive], w[alive], payload[alive]
