@@ -91,6 +91,33 @@ def test_curvature_transport_walk_reflects_chandrasekhars_albedo_and_a_sphere_mo
     np.testing.assert_array_equal(ct.truncated_ratio(0.061, 0.18, 2_000, 0.1, np.inf), 1.0)
 
 
+def test_sphere_transport_walk_conserves_light_and_finds_the_flow_at_the_terminator():
+    """The whole-sphere walk of ``benchmarks/sphere_transport.py`` (independent of the renderer): without absorption and
+    with every order tallied, all the light that enters leaves (the power the sphere intercepts, ``I 2 pi (1 - cos
+    alpha)``, to the noise of the bins' Monte Carlo areas); with absorption, the orders >= 2 leave brighter away from
+    the light than towards it at the terminator (the first azimuthal harmonic ``A1 > 0``), hardly at all facing it."""
+    import numpy as np
+
+    from benchmarks import sphere_transport as st
+
+    light, radius = np.array([-90.0, -70.0, 50.0]), 20.0
+    walk = st.sphere_walk(0.0, 1.0, radius, light, 2.0e4, 20_000, seed=3, min_order=0)
+    u = np.random.default_rng(5).normal(size=(1_000_000, 3))
+    u /= np.linalg.norm(u, axis=1, keepdims=True)
+    area = np.histogram(st._frame(radius * u, light)[1], st.FINE_EDGES)[0] / len(u) * 4.0 * np.pi * radius**2
+    cone = np.sqrt(1.0 - (radius / np.linalg.norm(light)) ** 2)
+    intercepted = 2.0e4 * 2.0 * np.pi * (1.0 - cone)
+    inside = area > 0
+    total = np.sum(walk["exitance"].sum(axis=1)[inside] * area[inside])
+    assert abs(total / intercepted - 1.0) < 0.01, (total, intercepted)
+    walk = st.sphere_walk(0.032, 0.74, radius, light, 2.0e4, 40_000, seed=4)
+    h = walk["harmonic"]
+    a1 = 2.0 * h[..., 1].sum(axis=1) / h[..., 0].sum(axis=1)  # per light band
+    terminator = list(st.LIGHT_EDGES).index(-0.1)
+    assert a1[terminator] > 0.2 and abs(a1[-1]) < 0.1, a1
+    assert "sphere_transport" in BENCHMARKS
+
+
 def test_render_eps_quick(tmp_path):
     assert render_eps.main(["--quick", "--out", str(tmp_path)]) == 0
     doc = _load(tmp_path, "render_eps")

@@ -1,0 +1,254 @@
+"""The renderer's orders >= 2 on a whole sphere against a transport walk: exitance by the light's cosine, where it
+entered, and what the exit's azimuth would change.
+
+A point light on an index-matched isotropic sphere (``eta = 1``, ``g = 0``: the scenes whose first order the renderer
+marches, :mod:`jaxsss.render.first_order`; its kernels then hold the orders >= 2). The walk is independent of the
+renderer: photons leave the light into the cone that the sphere subtends, enter where they hit it, and scatter
+analogue (isotropic, absorption by weight, roulette below a weight of 1e-3) until they leave; the light that leaves
+after two or more interactions is tallied
+
+- by the cosine to the light at its exit point: the exitance, W/mm^2, against the renderer's
+  (:meth:`jaxsss.render.renderer.Prepared.exitance`, the node rows summed, at its shaded points: the pixels' hits),
+  the walk's interpolated at each shaded point from :data:`FINE_EDGES` and both summed per band (:data:`LIGHT_EDGES`);
+- and by the cosine to the light at its *entry* (:data:`ENTRY_EDGES`): the renderer's side masks its irradiance
+  samples to the same bins and sums again, so each band's error is split by the light that feeds it;
+- and by its exit direction: the first azimuthal harmonic ``A1`` of the radiance (``L ~ 1 + A1 cos phi``, ``phi``
+  from the light's flow, the direction along the surface away from the light) per band and exit cosine. The
+  renderer's exit has no azimuth (its exit distributions depend on the exit cosine only). ``camera_factor`` is what
+  the walk's ``A1`` makes of the camera's view at the renderer's shaded points, exitance-weighted per band: below 1
+  where the camera looks against the flow (from the light's side, at the terminator).
+
+Rows: one per scene, channel and light band; ``error`` is ``|renderer / walk - 1|`` of the band's exitance. Seconds:
+the walk (NumPy) and, in ``render_seconds``, the renderer's exitance sums (after compilation). ``--quick``: 1e5
+photons per channel (full: 1e6). docs/path_tracer.md, "Two errors that cancel at the terminator", quotes the full run.
+"""
+
+from __future__ import annotations
+
+import sys
+import time
+import tomllib
+from pathlib import Path
+
+import numpy as np
+
+from benchmarks._harness import make_row, parse_args, write_results
+from jaxsss.render.walk import walk_photons
+
+NAME = "sphere_transport"
+REFERENCES = Path(__file__).resolve().parents[1] / "tests" / "export" / "references"
+SCENES = {"skin1, 20 mm sphere": ("skin1_sphere.toml", None), "skin1, 8 mm sphere": ("skin1_sphere.toml", 8.0)}
+"""Scene file (the path-traced reference's) and the sphere's radius in mm (None: the file's)."""
+LIGHT_EDGES = np.array([-0.3, -0.1, 0.1, 0.3, 0.5, 0.7, 0.9, 1.0])
+FINE_EDGES = np.linspace(-1.0, 1.0, 81)
+"""The walk's exitance is tallied on these finer bins and interpolated at each shaded point: within a band the
+exitance changes several-fold near the terminator, and the shaded points are not spread over it as the area is."""
+ENTRY_EDGES = np.array([0.0, 0.2, 0.4, 0.7, 1.0])
+MU_EDGES = np.linspace(0.0, 1.0, 11)
+PHOTONS, QUICK_PHOTONS = 1_000_000, 100_000
+METRIC = "|renderer / walk - 1|, orders >= 2 exitance in the light-cos band"
+
+
+def _frame(x, light):
+    """``(normal, cos to the light, flow)`` at sphere points ``x`` ``(N, 3)`` (centre at the origin): the flow is the
+    unit tangential direction away from the light."""
+    n = x / np.linalg.norm(x, axis=-1, keepdims=True)
+    to_light = light - x
+    to_light /= np.linalg.norm(to_light, axis=-1, keepdims=True)
+    cos = np.sum(n * to_light, axis=-1)
+    flow = -(to_light - cos[:, None] * n)
+    return n, cos, flow / np.maximum(np.linalg.norm(flow, axis=-1, keepdims=True), 1e-300)
+
+
+def sphere_walk(sigma_a: float, sigma_s: float, radius: float, light, intensity: float, photons: int, seed: int = 0,
+                min_order: int = 2) -> dict:
+    """The walk (module docstring) on a sphere of ``radius`` mm at the origin under a point light at ``light`` (mm) of
+    ``intensity`` W/sr: ``exitance`` ``(F, E)`` W/mm^2 by fine light bin (:data:`FINE_EDGES`) and entry bin, and
+    ``harmonic`` ``(B, M, 2)`` (light, light times ``cos phi``) by light band and exit cosine
+    (:func:`jaxsss.render.walk.walk_photons`); ``min_order`` 0 tallies every photon (for the tests: without absorption
+    every photon that enters leaves)."""
+    rng = np.random.default_rng(seed)
+    light = np.asarray(light, dtype=float)
+    sigma_t, albedo = sigma_a + sigma_s, sigma_s / (sigma_a + sigma_s)
+    dist = np.linalg.norm(light)
+    cos_cone = np.sqrt(1.0 - (radius / dist) ** 2)
+    # Directions uniform in the cone the sphere subtends: each photon carries I Omega / N.
+    axis = -light / dist
+    cz = 1.0 - rng.random(photons) * (1.0 - cos_cone)
+    phi = 2.0 * np.pi * rng.random(photons)
+    sz = np.sqrt(1.0 - cz * cz)
+    e1 = np.cross(axis, [0.0, 0.0, 1.0] if abs(axis[2]) < 0.9 else [1.0, 0.0, 0.0])
+    e1 /= np.linalg.norm(e1)
+    e2 = np.cross(axis, e1)
+    d = cz[:, None] * axis + (sz * np.cos(phi))[:, None] * e1 + (sz * np.sin(phi))[:, None] * e2
+    b = d @ light
+    disc = b * b - (light @ light - radius * radius)
+    hit = disc > 0.0
+    pos = light + (-b[hit] - np.sqrt(disc[hit]))[:, None] * d[hit]
+    d = d[hit]
+    entry_cos = -np.sum(pos / radius * d, axis=1)
+    exit_light = np.zeros((len(FINE_EDGES) - 1, len(ENTRY_EDGES) - 1))
+    harmonic = np.zeros((len(LIGHT_EDGES) - 1, len(MU_EDGES) - 1, 2))
+
+    def tally(entry, exit_point, direction, weight):
+        n, cos, flow = _frame(exit_point, light * sigma_t)  # mean free paths: the cosines do not change
+        mu = np.clip(np.sum(n * direction, axis=1), 0.0, 1.0)
+        along = direction - mu[:, None] * n
+        cos_phi = np.sum(along * flow, axis=1) / np.maximum(np.linalg.norm(along, axis=1), 1e-300)
+        exit_light[:] += np.histogram2d(cos, entry, [FINE_EDGES, ENTRY_EDGES], weights=weight)[0]
+        for i, f in enumerate((weight, weight * cos_phi)):
+            harmonic[..., i] += np.histogram2d(cos, mu, [LIGHT_EDGES, MU_EDGES], weights=f)[0]
+
+    # In mean free paths (sigma_t = 1), about the sphere's centre.
+    walk_photons(rng, pos * sigma_t, d, albedo, tally, centre=np.zeros(3), radius=radius * sigma_t,
+                 min_order=min_order, payload=entry_cos)
+    # Each fine bin's area on the sphere (Monte Carlo over the surface, the same seed stream).
+    u = rng.normal(size=(4_000_000, 3))
+    u /= np.linalg.norm(u, axis=1, keepdims=True)
+    area = np.histogram(_frame(radius * u, light)[1], FINE_EDGES)[0] / len(u) * 4.0 * np.pi * radius**2
+    power = intensity * 2.0 * np.pi * (1.0 - cos_cone) / photons
+    return {"exitance": exit_light * power / np.maximum(area, 1e-300)[:, None], "harmonic": harmonic,
+            "area": area}
+
+
+def _scene(file: str, radius: float | None):
+    """The reference scene ``file`` with its sphere's ``radius`` (mm) replaced (None: kept): ``(scene, radius,
+    light position, intensity)``."""
+    from jaxsss.render.scene import parse_scene
+
+    data = tomllib.loads((REFERENCES / file).read_text())
+    if radius is not None:
+        data["mesh"]["radius"] = float(radius)
+    light = data["light"][0]
+    return (parse_scene(data, path=file, base_dir=REFERENCES), float(data["mesh"]["radius"]),
+            np.asarray(light["position"], float), float(light["intensity"]))
+
+
+def renderer_exitance(scene) -> dict:
+    """The renderer's orders >= 2 exitance at its shaded points, ``(Q, C)``, whole and with the irradiance samples
+    masked to each entry bin (``(E, Q, C)``), their cosines to the light, exit cosines and directions to the eye."""
+    import equinox as eqx
+    import jax.numpy as jnp
+
+    from jaxsss.render import render
+
+    result = render(scene)
+    state, medium = result.prepared.state, scene.material.medium
+    if state.first_order is None:
+        raise ValueError(f"{NAME}: the scene's plan does not march the first order (eta = 1, g = 0 needed)")
+    k = len(state.bssrdf_mus)
+    whole = np.asarray(state.exitance(medium))[:, :k].sum(axis=1)
+    t0 = time.perf_counter()
+    whole = np.asarray(state.exitance(medium))[:, :k].sum(axis=1)
+    seconds = time.perf_counter() - t0
+    cos = np.asarray(state.light_cos)[:, 0]
+    parts = []
+    for lo, hi in zip(ENTRY_EDGES[:-1], ENTRY_EDGES[1:]):
+        mask = jnp.asarray(((cos >= lo) & (cos < hi)).astype(float))
+        masked = eqx.tree_at(lambda s: s.light_irradiance, state,
+                             state.light_irradiance * mask.reshape((-1,) + (1,) * (state.light_irradiance.ndim - 1)))
+        parts.append(np.asarray(masked.exitance(medium))[:, :k].sum(axis=1))
+    return {"whole": whole, "parts": np.stack(parts), "pos": np.asarray(state.query_pos),
+            "cos_o": np.asarray(state.cos_o), "to_eye": np.asarray(state.to_eye), "seconds": seconds}
+
+
+def camera_factor(walk: dict, radius: float, light, pos, cos_o, to_eye, weights) -> np.ndarray:
+    """``(B,)``: ``1 + A1 cos phi_eye`` at the renderer's shaded points (the walk's ``A1`` of their band and exit
+    cosine, ``phi_eye`` the eye's azimuth from the flow), averaged per light band with ``weights`` ``(Q,)``."""
+    x = pos / np.linalg.norm(pos, axis=1, keepdims=True) * radius
+    n, cos, flow = _frame(x, np.asarray(light, float))
+    along = to_eye - cos_o[:, None] * n
+    cos_phi = np.sum(along * flow, axis=1) / np.maximum(np.linalg.norm(along, axis=1), 1e-300)
+    h = walk["harmonic"]
+    a1 = 2.0 * h[..., 1] / np.maximum(h[..., 0], 1e-300)  # (B, M)
+    band = np.clip(np.searchsorted(LIGHT_EDGES, cos, side="right") - 1, 0, len(LIGHT_EDGES) - 2)
+    m = np.clip(np.searchsorted(MU_EDGES, cos_o, side="right") - 1, 0, len(MU_EDGES) - 2)
+    factor = 1.0 + a1[band, m] * cos_phi
+    out = np.full(len(LIGHT_EDGES) - 1, np.nan)
+    for b in range(len(out)):
+        sel = (band == b) & (cos >= LIGHT_EDGES[0]) & (cos < LIGHT_EDGES[-1])
+        if sel.sum() >= 3 and weights[sel].sum() > 0:
+            out[b] = np.average(factor[sel], weights=weights[sel])
+    return out
+
+
+def main(argv=None) -> int:
+    args = parse_args(argv, __doc__.splitlines()[0])
+    photons = QUICK_PHOTONS if args.quick else PHOTONS
+    rows = []
+    for label, (file, radius) in SCENES.items():
+        scene, radius, light, intensity = _scene(file, radius)
+        medium = scene.material.medium
+        ren = renderer_exitance(scene)
+        x = ren["pos"] / np.linalg.norm(ren["pos"], axis=1, keepdims=True) * radius
+        cos = _frame(x, light)[1]
+        band = np.clip(np.searchsorted(LIGHT_EDGES, cos, side="right") - 1, 0, len(LIGHT_EDGES) - 2)
+        inside = (cos >= LIGHT_EDGES[0]) & (cos < LIGHT_EDGES[-1])
+        for c in range(ren["whole"].shape[1]):
+            sa = float(np.broadcast_to(np.asarray(medium.sigma_a), (3,))[c])
+            ss = float(np.broadcast_to(np.asarray(medium.sigma_s_prime), (3,))[c])
+            t0 = time.perf_counter()
+            walk = sphere_walk(sa, ss, radius, light, intensity, photons, seed=17 + c)
+            seconds = time.perf_counter() - t0
+            factor = camera_factor(walk, radius, light, ren["pos"], ren["cos_o"], ren["to_eye"],
+                                   ren["whole"][:, c])
+            # The walk at each shaded point: (E, Q), linear in the cosine between the fine bins' centres.
+            centres = 0.5 * (FINE_EDGES[1:] + FINE_EDGES[:-1])
+            at = np.stack([np.interp(cos, centres, walk["exitance"][:, e]) for e in range(len(ENTRY_EDGES) - 1)])
+            for b in range(len(LIGHT_EDGES) - 1):
+                sel = inside & (band == b)
+                truth = at[:, sel].sum(axis=1)
+                if sel.sum() < 3 or truth.sum() <= 0:
+                    continue
+                parts = ren["parts"][:, sel, c].sum(axis=1)
+                ratio = float(ren["whole"][sel, c].sum() / truth.sum())
+                rows.append(make_row(
+                    NAME, f"{label}, {'RGB'[c]}", f"cos to the light {LIGHT_EDGES[b]:+.1f}..{LIGHT_EDGES[b + 1]:+.1f}",
+                    abs(ratio - 1.0), METRIC, seconds, None, channel="RGB"[c], l_u_mm=1.0 / (sa + ss),
+                    radius_mm=radius, light_band=[float(LIGHT_EDGES[b]), float(LIGHT_EDGES[b + 1])],
+                    exitance_ratio=ratio, walk_exitance=float(truth.sum() / sel.sum()),
+                    entry_edges=ENTRY_EDGES.tolist(), walk_share_by_entry=(truth / truth.sum()).tolist(),
+                    ratio_by_entry=[float(p / t) if t > 0 else None for p, t in zip(parts, truth)],
+                    camera_factor=None if np.isnan(factor[b]) else float(factor[b]), shaded_points=int(sel.sum()),
+                    render_seconds=ren["seconds"], photons=photons))
+                r = rows[-1]
+                print(f"{label:20s} {'RGB'[c]} {r['setting']:30s} renderer/walk {ratio:.3f}  by entry cos "
+                      + " ".join("  -  " if v is None else f"{v:.2f}" for v in r["ratio_by_entry"])
+                      + f"  (walk shares {' '.join(f'{s:.2f}' for s in r['walk_share_by_entry'])})"
+                      + f"  camera factor {r['camera_factor']}", flush=True)
+    write_results(NAME, rows, args.out, quick=args.quick, connect=False,
+                  notes=[f"point light, eta 1, g 0; orders >= 2; {photons} photons per channel; entry bins "
+                         f"{ENTRY_EDGES.tolist()}; renderer: render(scene) defaults"],
+                  title="renderer vs a walk on the whole sphere: orders >= 2 exitance by the light's cosine")
+    _plot(rows, args.out, args.tag)
+    return 0
+
+
+def _plot(rows, out, tag: str = "") -> None:
+    """Per scene: the renderer's exitance over the walk's (solid) and the walk's camera factor (dashed) against the
+    band's cosine to the light, one colour per channel."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    labels = list(dict.fromkeys(r["method"].rsplit(",", 1)[0] for r in rows))
+    fig, axes = plt.subplots(1, len(labels), figsize=(5.5 * len(labels), 4.2), layout="constrained", sharey=True)
+    for ax, label in zip(np.atleast_1d(axes), labels):
+        for c, colour in zip("RGB", ("tab:red", "tab:green", "tab:blue")):
+            sel = [r for r in rows if r["method"] == f"{label}, {c}"]
+            x = [0.5 * sum(r["light_band"]) for r in sel]
+            ax.plot(x, [r["exitance_ratio"] for r in sel], "o-", color=colour, label=f"{c}: exitance, renderer / walk")
+            ax.plot(x, [r["camera_factor"] for r in sel], "s--", color=colour, alpha=0.6,
+                    label=f"{c}: walk's azimuth factor seen by the camera")
+        ax.axhline(1.0, color="k", lw=0.8)
+        ax.set(title=label, xlabel="cosine to the light (band centre)")
+        ax.grid(True, alpha=0.3)
+    np.atleast_1d(axes)[0].set_ylabel("ratio (orders >= 2)")
+    np.atleast_1d(axes)[0].legend(fontsize=7)
+    fig.savefig(Path(out) / f"{NAME}{tag}_bands.png", dpi=110)
+    plt.close(fig)
+
+
+if __name__ == "__main__":
+    sys.exit(main(sys.argv[1:]))
