@@ -37,8 +37,12 @@ from jaxsss.render.walk import walk_photons
 
 NAME = "sphere_transport"
 REFERENCES = Path(__file__).resolve().parents[1] / "tests" / "export" / "references"
-SCENES = {"skin1, 20 mm sphere": ("skin1_sphere.toml", None), "skin1, 8 mm sphere": ("skin1_sphere.toml", 8.0)}
-"""Scene file (the path-traced reference's) and the sphere's radius in mm (None: the file's)."""
+SCENES = {"skin1, 20 mm sphere": ("skin1_sphere.toml", None, None),
+          "skin1, 8 mm sphere": ("skin1_sphere.toml", 8.0, None),
+          "skin1, 20 mm sphere, lit from behind": ("skin1_sphere.toml", None, (70.0, 90.0, 40.0))}
+"""Scene file (the path-traced reference's), the sphere's radius in mm and the point light's position in mm (None:
+the file's). The committed references' camera sees the terminator from the light's side; lit from behind, it sees it
+from the dark side, along the light's flow."""
 LIGHT_EDGES = np.array([-0.3, -0.1, 0.1, 0.3, 0.5, 0.7, 0.9, 1.0])
 FINE_EDGES = np.linspace(-1.0, 1.0, 81)
 """The walk's exitance is tallied on these finer bins and interpolated at each shaded point: within a band the
@@ -111,15 +115,17 @@ def sphere_walk(sigma_a: float, sigma_s: float, radius: float, light, intensity:
             "area": area}
 
 
-def _scene(file: str, radius: float | None):
-    """The reference scene ``file`` with its sphere's ``radius`` (mm) replaced (None: kept): ``(scene, radius,
-    light position, intensity)``."""
+def _scene(file: str, radius: float | None, position=None):
+    """The reference scene ``file`` with its sphere's ``radius`` (mm) and its light's ``position`` (mm) replaced (None:
+    kept): ``(scene, radius, light position, intensity)``."""
     from jaxsss.render.scene import parse_scene
 
     data = tomllib.loads((REFERENCES / file).read_text())
     if radius is not None:
         data["mesh"]["radius"] = float(radius)
     light = data["light"][0]
+    if position is not None:
+        light["position"] = [float(x) for x in position]
     return (parse_scene(data, path=file, base_dir=REFERENCES), float(data["mesh"]["radius"]),
             np.asarray(light["position"], float), float(light["intensity"]))
 
@@ -176,8 +182,8 @@ def main(argv=None) -> int:
     args = parse_args(argv, __doc__.splitlines()[0])
     photons = QUICK_PHOTONS if args.quick else PHOTONS
     rows = []
-    for label, (file, radius) in SCENES.items():
-        scene, radius, light, intensity = _scene(file, radius)
+    for label, (file, radius, position) in SCENES.items():
+        scene, radius, light, intensity = _scene(file, radius, position)
         medium = scene.material.medium
         ren = renderer_exitance(scene)
         x = ren["pos"] / np.linalg.norm(ren["pos"], axis=1, keepdims=True) * radius
@@ -233,7 +239,7 @@ def _plot(rows, out, tag: str = "") -> None:
     import matplotlib.pyplot as plt
 
     labels = list(dict.fromkeys(r["method"].rsplit(",", 1)[0] for r in rows))
-    fig, axes = plt.subplots(1, len(labels), figsize=(5.5 * len(labels), 4.2), layout="constrained", sharey=True)
+    fig, axes = plt.subplots(1, len(labels), figsize=(5.0 * len(labels), 4.2), layout="constrained", sharey=True)
     for ax, label in zip(np.atleast_1d(axes), labels):
         for c, colour in zip("RGB", ("tab:red", "tab:green", "tab:blue")):
             sel = [r for r in rows if r["method"] == f"{label}, {c}"]
