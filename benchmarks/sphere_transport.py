@@ -18,9 +18,9 @@ after two or more interactions is tallied
   the walk's ``A1`` makes of the camera's view at the renderer's shaded points, exitance-weighted per band: below 1
   where the camera looks against the flow (from the light's side, at the terminator).
 
-Rows: one per scene, channel and light band; ``error`` is ``|renderer / walk - 1|`` of the band's exitance. Seconds:
-the walk (NumPy) and, in ``render_seconds``, the renderer's exitance sums (after compilation). ``--quick``: 1e5
-photons per channel (full: 1e6). docs/path_tracer.md, "Two errors that cancel at the terminator", quotes the full run.
+Rows: one per scene, channel and light band; ``error`` is ``|renderer / walk - 1|`` of the band's exitance; seconds:
+the walk's (NumPy; a diagnostic against transport, not a speed comparison: the renderer's exitance rows are summed
+op by op here). ``--quick``: 1e5 photons per channel (full: 1e6). docs/path_tracer.md, "Two errors that cancel at the terminator", quotes the full run.
 """
 
 from __future__ import annotations
@@ -144,9 +144,6 @@ def renderer_exitance(scene) -> dict:
         raise ValueError(f"{NAME}: the scene's plan does not march the first order (eta = 1, g = 0 needed)")
     k = len(state.bssrdf_mus)
     whole = np.asarray(state.exitance(medium))[:, :k].sum(axis=1)
-    t0 = time.perf_counter()
-    whole = np.asarray(state.exitance(medium))[:, :k].sum(axis=1)
-    seconds = time.perf_counter() - t0
     cos = np.asarray(state.light_cos)[:, 0]
     parts = []
     for lo, hi in zip(ENTRY_EDGES[:-1], ENTRY_EDGES[1:]):
@@ -155,7 +152,7 @@ def renderer_exitance(scene) -> dict:
                              state.light_irradiance * mask.reshape((-1,) + (1,) * (state.light_irradiance.ndim - 1)))
         parts.append(np.asarray(masked.exitance(medium))[:, :k].sum(axis=1))
     return {"whole": whole, "parts": np.stack(parts), "pos": np.asarray(state.query_pos),
-            "cos_o": np.asarray(state.cos_o), "to_eye": np.asarray(state.to_eye), "seconds": seconds}
+            "cos_o": np.asarray(state.cos_o), "to_eye": np.asarray(state.to_eye)}
 
 
 def camera_factor(walk: dict, radius: float, light, pos, cos_o, to_eye, weights) -> np.ndarray:
@@ -216,7 +213,7 @@ def main(argv=None) -> int:
                     entry_edges=ENTRY_EDGES.tolist(), walk_share_by_entry=(truth / truth.sum()).tolist(),
                     ratio_by_entry=[float(p / t) if t > 0 else None for p, t in zip(parts, truth)],
                     camera_factor=None if np.isnan(factor[b]) else float(factor[b]), shaded_points=int(sel.sum()),
-                    render_seconds=ren["seconds"], photons=photons))
+                    photons=photons))
                 r = rows[-1]
                 print(f"{label:20s} {'RGB'[c]} {r['setting']:30s} renderer/walk {ratio:.3f}  by entry cos "
                       + " ".join("  -  " if v is None else f"{v:.2f}" for v in r["ratio_by_entry"])
