@@ -20,7 +20,8 @@ after two or more interactions is tallied
 
 Rows: one per scene, channel and light band; ``error`` is ``|renderer / walk - 1|`` of the band's exitance; seconds:
 the walk's (NumPy; a diagnostic against transport, not a speed comparison: the renderer's exitance rows are summed
-op by op here). ``--quick``: 1e5 photons per channel (full: 1e6). docs/path_tracer.md, "Two errors that cancel at the terminator", quotes the full run.
+op by op here). ``--quick``: 1e5 photons per channel (full: 1e6). docs/path_tracer.md, "Two errors that cancel at
+the terminator", quotes the full run.
 """
 
 from __future__ import annotations
