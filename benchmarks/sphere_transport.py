@@ -26,6 +26,7 @@ the terminator", quotes the full run.
 
 from __future__ import annotations
 
+import functools
 import sys
 import time
 import tomllib
@@ -63,6 +64,24 @@ def _frame(x, light):
     cos = np.sum(n * to_light, axis=-1)
     flow = -(to_light - cos[:, None] * n)
     return n, cos, flow / np.maximum(np.linalg.norm(flow, axis=-1, keepdims=True), 1e-300)
+
+
+@functools.lru_cache(maxsize=8)
+def fine_areas(radius: float, light: tuple) -> np.ndarray:
+    """``(F,)``: each fine bin's area on the sphere of ``radius`` mm at the origin (mm^2), by the cosine to a point
+    light at ``light`` (mm; a tuple, for the cache): Monte Carlo over the surface, 4e6 points, a fixed seed."""
+    u = np.random.default_rng(0).normal(size=(4_000_000, 3))
+    u /= np.linalg.norm(u, axis=1, keepdims=True)
+    cos = _frame(radius * u, np.asarray(light, float))[1]
+    return np.histogram(cos, FINE_EDGES)[0] / len(u) * 4.0 * np.pi * radius**2
+
+
+def light_bands(pos, radius: float, light):
+    """``(normal, cos, flow, band, inside)`` at shaded points ``pos`` ``(Q, 3)`` (projected on the sphere): the
+    frame of :func:`_frame`, each point's :data:`LIGHT_EDGES` band and whether it lies within them."""
+    n, cos, flow = _frame(pos / np.linalg.norm(pos, axis=1, keepdims=True) * radius, np.asarray(light, float))
+    band = np.clip(np.searchsorted(LIGHT_EDGES, cos, side="right") - 1, 0, len(LIGHT_EDGES) - 2)
+    return n, cos, flow, band, (cos >= LIGHT_EDGES[0]) & (cos < LIGHT_EDGES[-1])
 
 
 def sphere_walk(sigma_a: float, sigma_s: float, radius: float, light, intensity: float, photons: int, seed: int = 0,
@@ -107,10 +126,7 @@ def sphere_walk(sigma_a: float, sigma_s: float, radius: float, light, intensity:
     # In mean free paths (sigma_t = 1), about the sphere's centre.
     walk_photons(rng, pos * sigma_t, d, albedo, tally, centre=np.zeros(3), radius=radius * sigma_t,
                  min_order=min_order, payload=entry_cos)
-    # Each fine bin's area on the sphere (Monte Carlo over the surface, the same seed stream).
-    u = rng.normal(size=(4_000_000, 3))
-    u /= np.linalg.norm(u, axis=1, keepdims=True)
-    area = np.histogram(_frame(radius * u, light)[1], FINE_EDGES)[0] / len(u) * 4.0 * np.pi * radius**2
+    area = fine_areas(float(radius), tuple(float(x) for x in light))
     power = intensity * 2.0 * np.pi * (1.0 - cos_cone) / photons
     return {"exitance": exit_light * power / np.maximum(area, 1e-300)[:, None], "harmonic": harmonic,
             "area": area}
@@ -159,18 +175,16 @@ def renderer_exitance(scene) -> dict:
 def camera_factor(walk: dict, radius: float, light, pos, cos_o, to_eye, weights) -> np.ndarray:
     """``(B,)``: ``1 + A1 cos phi_eye`` at the renderer's shaded points (the walk's ``A1`` of their band and exit
     cosine, ``phi_eye`` the eye's azimuth from the flow), averaged per light band with ``weights`` ``(Q,)``."""
-    x = pos / np.linalg.norm(pos, axis=1, keepdims=True) * radius
-    n, cos, flow = _frame(x, np.asarray(light, float))
+    n, _, flow, band, inside = light_bands(pos, radius, light)
     along = to_eye - cos_o[:, None] * n
     cos_phi = np.sum(along * flow, axis=1) / np.maximum(np.linalg.norm(along, axis=1), 1e-300)
     h = walk["harmonic"]
     a1 = 2.0 * h[..., 1] / np.maximum(h[..., 0], 1e-300)  # (B, M)
-    band = np.clip(np.searchsorted(LIGHT_EDGES, cos, side="right") - 1, 0, len(LIGHT_EDGES) - 2)
     m = np.clip(np.searchsorted(MU_EDGES, cos_o, side="right") - 1, 0, len(MU_EDGES) - 2)
     factor = 1.0 + a1[band, m] * cos_phi
     out = np.full(len(LIGHT_EDGES) - 1, np.nan)
     for b in range(len(out)):
-        sel = (band == b) & (cos >= LIGHT_EDGES[0]) & (cos < LIGHT_EDGES[-1])
+        sel = (band == b) & inside
         if sel.sum() >= 3 and weights[sel].sum() > 0:
             out[b] = np.average(factor[sel], weights=weights[sel])
     return out
@@ -184,10 +198,8 @@ def main(argv=None) -> int:
         scene, radius, light, intensity = _scene(file, radius, position)
         medium = scene.material.medium
         ren = renderer_exitance(scene)
-        x = ren["pos"] / np.linalg.norm(ren["pos"], axis=1, keepdims=True) * radius
-        cos = _frame(x, light)[1]
-        band = np.clip(np.searchsorted(LIGHT_EDGES, cos, side="right") - 1, 0, len(LIGHT_EDGES) - 2)
-        inside = (cos >= LIGHT_EDGES[0]) & (cos < LIGHT_EDGES[-1])
+        _, cos, _, band, inside = light_bands(ren["pos"], radius, light)
+        centres = 0.5 * (FINE_EDGES[1:] + FINE_EDGES[:-1])
         for c in range(ren["whole"].shape[1]):
             sa = float(np.broadcast_to(np.asarray(medium.sigma_a), (3,))[c])
             ss = float(np.broadcast_to(np.asarray(medium.sigma_s_prime), (3,))[c])
@@ -197,7 +209,6 @@ def main(argv=None) -> int:
             factor = camera_factor(walk, radius, light, ren["pos"], ren["cos_o"], ren["to_eye"],
                                    ren["whole"][:, c])
             # The walk at each shaded point: (E, Q), linear in the cosine between the fine bins' centres.
-            centres = 0.5 * (FINE_EDGES[1:] + FINE_EDGES[:-1])
             at = np.stack([np.interp(cos, centres, walk["exitance"][:, e]) for e in range(len(ENTRY_EDGES) - 1)])
             for b in range(len(LIGHT_EDGES) - 1):
                 sel = inside & (band == b)

@@ -102,9 +102,8 @@ def test_sphere_transport_walk_conserves_light_and_finds_the_flow_at_the_termina
 
     light, radius = np.array([-90.0, -70.0, 50.0]), 20.0
     walk = st.sphere_walk(0.0, 1.0, radius, light, 2.0e4, 20_000, seed=3, min_order=0)
-    u = np.random.default_rng(5).normal(size=(1_000_000, 3))
-    u /= np.linalg.norm(u, axis=1, keepdims=True)
-    area = np.histogram(st._frame(radius * u, light)[1], st.FINE_EDGES)[0] / len(u) * 4.0 * np.pi * radius**2
+    area = st.fine_areas(radius, tuple(light))
+    assert abs(area.sum() / (4.0 * np.pi * radius**2) - 1.0) < 1e-12  # every point of the sphere lies in a bin
     cone = np.sqrt(1.0 - (radius / np.linalg.norm(light)) ** 2)
     intercepted = 2.0e4 * 2.0 * np.pi * (1.0 - cone)
     inside = area > 0
