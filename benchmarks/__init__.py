@@ -21,7 +21,7 @@ from benchmarks._harness import (
 BENCHMARKS = ("profile_throughput", "rd_inversion", "mc_throughput", "transport_error", "fit_speed", "fit_accuracy",
               "fit_sweep", "render_eps", "render_density", "render_bssrdf_sampling", "render_cache", "photon_diffusion",
               "layered", "photon_render", "white_far_field", "render_vs_path_tracer", "mcml_fits", "replay_fits",
-              "white_interpolation", "fit_path_traced", "curvature_transport", "sphere_transport")
+              "white_interpolation", "fit_path_traced", "curvature_transport", "sphere_transport", "render_materials")
 """Module names under :mod:`benchmarks` run by :mod:`benchmarks.run_all`, in order."""
 
 __all__ = [

@@ -84,7 +84,7 @@ sum. ``"auto"`` would pick the kernel per material; the rows name it so that old
 scene."""
 
 
-def _llvm_env() -> None:
+def llvm_env() -> None:
     if "DRJIT_LIBLLVM_PATH" not in os.environ:
         for cand in LLVM_CANDIDATES:
             if Path(cand).is_file():
@@ -92,14 +92,14 @@ def _llvm_env() -> None:
                 break
 
 
-def load_reference(name: str):
-    """``(scene, image (H, W, 3), coverage (H, W), sidecar dict)`` of a committed reference (the scene its sidecar
-    names: a first-order reference shares its scene's)."""
+def load_reference(name: str, directory: Path = REFERENCES):
+    """``(scene, image (H, W, 3), coverage (H, W), sidecar dict)`` of a committed reference in ``directory`` (the
+    scene its sidecar names: a first-order reference shares its scene's)."""
     from jaxsss.render import load_scene
 
-    data = np.load(REFERENCES / f"{name}.npz")
-    meta = json.loads((REFERENCES / f"{name}.json").read_text())
-    return (load_scene(REFERENCES / meta["scene"]), data["image"].astype(np.float64),
+    data = np.load(directory / f"{name}.npz")
+    meta = json.loads((directory / f"{name}.json").read_text())
+    return (load_scene(directory / meta["scene"]), data["image"].astype(np.float64),
             data["coverage"].astype(np.float64), meta)
 
 
@@ -125,8 +125,17 @@ SKIES = {"skin1_sphere_env": ("skin1_sphere_env_sky.npy", skin1_env_sky),
 """Environment maps of reference scenes, written next to their scene file before a reference is rendered."""
 
 
-def make_reference(name: str) -> dict:
-    """Render and write ``<name>.npz`` and ``<name>.json`` (two half-spp renders with seeds :data:`REFERENCE_SEEDS`)."""
+def make_reference(name: str, directory: Path = REFERENCES, spp: int | None = None,
+                   command: str | None = None) -> dict:
+    """Render and write ``<directory>/<name>.npz`` and ``<name>.json`` (two half-spp renders with seeds
+    :data:`REFERENCE_SEEDS`) of the scene ``<directory>/<name>.toml`` (a first-order reference: its scene's).
+
+    Args:
+        name: the reference's name.
+        directory: where the scene file is and the reference goes.
+        spp: samples per pixel in all (default :data:`REFERENCE_SPP`).
+        command: the command line recorded in the sidecar (default this module's ``--references NAME``).
+    """
     import mitsuba as mi
 
     from jaxsss.export import mitsuba as xm
@@ -135,12 +144,12 @@ def make_reference(name: str) -> dict:
 
     if name in SKIES:
         file, make = SKIES[name]
-        np.save(REFERENCES / file, make())
+        np.save(directory / file, make())
     scene_name = FIRST_ORDER_REFERENCES.get(name, name)
     max_depth = 2 if name in FIRST_ORDER_REFERENCES else -1
-    scene = load_scene(REFERENCES / f"{scene_name}.toml")
+    scene = load_scene(directory / f"{scene_name}.toml")
     variant = xm.select_variant()
-    spp = REFERENCE_SPP[name]
+    spp = REFERENCE_SPP[name] if spp is None else spp
     halves = [xm.render_mitsuba(scene, spp=spp // 2, seed=s, max_depth=max_depth) for s in REFERENCE_SEEDS]
     t0 = time.perf_counter()
     coverage = xm.object_coverage(scene, spp=1024, seed=7)
@@ -149,9 +158,11 @@ def make_reference(name: str) -> dict:
     # Noise of the average of two halves: half the mean |relative difference| between them (each half has twice
     # the variance of the average, and their difference twice that of one half).
     noise = compare_images(halves[0].image, halves[1].image, pixel_geometry(scene), coverage=coverage)
+    if command is None:
+        command = shlex.join(["benchmarks/render_vs_path_tracer.py", "--references", name])
     meta = {
         "scene": f"{scene_name}.toml",
-        "command": f"nice -n 10 python {shlex.join(['benchmarks/render_vs_path_tracer.py', '--references', name])}",
+        "command": f"nice -n 10 python {command}",
         "renderer": "mitsuba", "mitsuba_version": mi.__version__, "variant": variant,
         "integrator": "volpathmis (jaxsss.export.mitsuba.scene_dict)", "max_depth": max_depth, "spp": spp,
         "seeds": list(REFERENCE_SEEDS), "spp_per_seed": spp // 2,
@@ -162,13 +173,13 @@ def make_reference(name: str) -> dict:
         "units": "image: linear radiance W/(mm^2 sr), float32; coverage: fraction of each pixel on the object",
         "date": time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime()), "load_average_1min": os.getloadavg()[0],
     }
-    np.savez_compressed(REFERENCES / f"{name}.npz", image=image.astype(np.float32),
+    np.savez_compressed(directory / f"{name}.npz", image=image.astype(np.float32),
                         coverage=coverage.astype(np.float32))
-    (REFERENCES / f"{name}.json").write_text(json.dumps(meta, indent=1) + "\n")
+    (directory / f"{name}.json").write_text(json.dumps(meta, indent=1) + "\n")
     return meta
 
 
-def _jaxsss_rows(name, scene, ref, coverage, pixels, settings):
+def jaxsss_rows(name, scene, ref, coverage, pixels, settings):
     from benchmarks._harness import make_row
     from benchmarks.render_eps import compile_clock
     from jaxsss.export.compare import compare_images
@@ -211,7 +222,7 @@ def order_split(scene, ref, coverage, pixels, first_ref) -> dict:
             "orders_2_up_by_cos": error_by_cos(image - first, ref - first_ref, pixels, coverage=coverage)}
 
 
-def _mitsuba_rows(name, scene, ref, coverage, pixels, spps):
+def mitsuba_rows(name, scene, ref, coverage, pixels, spps):
     from benchmarks._harness import make_row
     from jaxsss.export import mitsuba as xm
     from jaxsss.export.compare import compare_images
@@ -228,17 +239,27 @@ def _mitsuba_rows(name, scene, ref, coverage, pixels, spps):
     return rows
 
 
-def equal_error(jaxsss_row: dict, mitsuba_rows: list) -> dict:
-    """Mitsuba's seconds at jaxsss's error, and the ratio: the line through the two highest-spp Mitsuba rows in log
-    error against log seconds, and the same from the highest row at the Monte Carlo rate ``error ~ 1/sqrt(spp)``.
+def equal_error(jaxsss_row: dict, mitsuba_rows: list, reference_noise=None) -> dict:
+    """Mitsuba's seconds at jaxsss's error, and the ratio, three ways:
+
+    - the line through the two highest-spp Mitsuba rows in log error against log seconds;
+    - from the highest row at the Monte Carlo rate ``error ~ 1/sqrt(spp)``;
+    - the same with the reference's own noise apart (given ``reference_noise``): both renderers are measured against
+      a reference with noise ``f`` per channel, so the path tracer's error per channel is ``e^2 = f^2 + c^2 /
+      seconds``, ``c`` from the highest row, and it reaches jaxsss's error ``E`` (the largest over the channels)
+      when every channel has, at ``max c^2 / (E^2 - f^2)``. Near the floor the plain estimates understate the path
+      tracer's seconds (they extrapolate a convergence the floor slows); where ``E`` is at or under a channel's
+      floor the path tracer cannot be measured to reach it against this reference (``mitsuba_seconds_floor`` None).
 
     Args:
         jaxsss_row: one jaxsss row (``error``, ``seconds``).
-        mitsuba_rows: the scene's Mitsuba rows at two or more spp.
+        mitsuba_rows: the scene's Mitsuba rows at two or more spp (with ``mare_lit`` per channel for the floor).
+        reference_noise: the reference's noise per channel (its sidecar's ``noise_mare_lit``), or None.
 
     Returns:
         ``error``, ``seconds``; ``slope`` of the line; ``mitsuba_seconds`` and ``ratio`` by the line;
-        ``mitsuba_seconds_sqrt`` and ``ratio_sqrt`` at ``1/sqrt(spp)``. A ratio above 1: jaxsss is faster.
+        ``mitsuba_seconds_sqrt`` and ``ratio_sqrt`` at ``1/sqrt(spp)``; ``mitsuba_seconds_floor`` and
+        ``ratio_floor`` with the noise apart (None without ``reference_noise``). A ratio above 1: jaxsss is faster.
     """
     if len(mitsuba_rows) < 2:
         raise ValueError(f"equal_error(mitsuba_rows=...) has {len(mitsuba_rows)} rows; it needs at least 2")
@@ -247,11 +268,28 @@ def equal_error(jaxsss_row: dict, mitsuba_rows: list) -> dict:
     slope = math.log(b["error"] / a["error"]) / math.log(b["seconds"] / a["seconds"])
     line = b["seconds"] * (e / b["error"]) ** (1.0 / slope)
     sqrt = b["seconds"] * (b["error"] / e) ** 2
+    floor = None
+    if reference_noise is not None:
+        f2 = np.asarray(reference_noise, dtype=float) ** 2
+        # c^2 per channel from the highest row, >= 0 (a channel already at its floor there needs no more time).
+        c2 = np.maximum(np.asarray(b["mare_lit"], dtype=float) ** 2 - f2, 0.0) * b["seconds"]
+        if e * e > f2.max():
+            floor = float(np.max(c2 / (e * e - f2)))
     return {"error": e, "seconds": t, "slope": slope, "mitsuba_seconds": line, "ratio": line / t,
-            "mitsuba_seconds_sqrt": sqrt, "ratio_sqrt": sqrt / t}
+            "mitsuba_seconds_sqrt": sqrt, "ratio_sqrt": sqrt / t, "mitsuba_seconds_floor": floor,
+            "ratio_floor": None if floor is None else floor / t}
 
 
-def _error_vs_seconds(rows, path):
+def format_equal_error(name: str, q: dict) -> str:
+    """One printed line of :func:`equal_error`'s result for scene ``name``."""
+    floor = ("under the reference's noise" if q["mitsuba_seconds_floor"] is None else
+             f"{q['mitsuba_seconds_floor']:.1f} s: {q['ratio_floor']:.1f}x")
+    return (f"{name}: {q['setting']} error {q['error']:.3f} in {q['seconds']:.2f} s; Mitsuba at equal error "
+            f"{q['mitsuba_seconds']:.1f} s (slope {q['slope']:.2f}): {q['ratio']:.1f}x, at 1/sqrt(spp) "
+            f"{q['mitsuba_seconds_sqrt']:.1f} s: {q['ratio_sqrt']:.1f}x; the reference's noise apart {floor}")
+
+
+def error_vs_seconds_plot(rows, path):
     """One panel per scene: error (max over RGB of mare_lit) against seconds, Mitsuba's spp sweep as a line, each
     jaxsss row as a labelled marker (the harness's single panel is unreadable with six scenes)."""
     import matplotlib.pyplot as plt
@@ -286,7 +324,7 @@ def _error_vs_seconds(rows, path):
     return path
 
 
-def _error_maps(panels, path):
+def error_maps_plot(panels, path):
     import matplotlib
 
     matplotlib.use("Agg")
@@ -313,7 +351,7 @@ def _error_maps(panels, path):
 
 
 def main(argv=None) -> int:
-    _llvm_env()
+    llvm_env()
     if argv is None:
         argv = sys.argv[1:]
     if "--references" in argv:
@@ -334,8 +372,8 @@ def main(argv=None) -> int:
     for name in SCENES:
         scene, ref, coverage, meta = load_reference(name)
         pixels = pixel_geometry(scene)
-        jrows, images = _jaxsss_rows(name, scene, ref, coverage, pixels, cfg["jaxsss"])
-        rows += jrows + _mitsuba_rows(name, scene, ref, coverage, pixels, cfg["mitsuba_spp"])
+        jrows, images = jaxsss_rows(name, scene, ref, coverage, pixels, cfg["jaxsss"])
+        rows += jrows + mitsuba_rows(name, scene, ref, coverage, pixels, cfg["mitsuba_spp"])
         for kernel in ("dipole", "white-oblique"):
             hier = images[next(k for k in images if k.startswith("hierarchical") and k.endswith(" " + kernel))]
             panels.append((f"{name} {kernel}", ref, hier, error_map(hier, ref, pixels, coverage=coverage)))
@@ -345,7 +383,8 @@ def main(argv=None) -> int:
         summary[name] = {"reference_spp": meta["spp"], "reference_seconds": meta["seconds"],
                          "reference_noise_mare": meta["noise_mare_lit"],
                          "equal_error": {"setting": row["setting"], **equal_error(
-                             row, [r for r in rows if r["scene"] == name and r["renderer"] == "mitsuba"])},
+                             row, [r for r in rows if r["scene"] == name and r["renderer"] == "mitsuba"],
+                             meta["noise_mare_lit"])},
                          "jaxsss_error_by_cos": {label: error_by_cos(img, ref, pixels, coverage=coverage)
                                                  for label, img in images.items()}}
     for first_name, name in FIRST_ORDER_REFERENCES.items():
@@ -357,8 +396,8 @@ def main(argv=None) -> int:
              "pass 2; first_call_seconds: the warm-up without compilation), Mitsuba mi.render"]
     json_path, png_path = write_results(NAME + args.tag, rows, args.out, quick=args.quick, summary=summary,
                                         notes=notes, title="jaxsss vs Mitsuba volpathmis: error vs seconds")
-    png_path = _error_vs_seconds(rows, png_path)
-    maps = _error_maps(panels, Path(args.out) / f"{NAME}{args.tag}_maps.png")
+    png_path = error_vs_seconds_plot(rows, png_path)
+    maps = error_maps_plot(panels, Path(args.out) / f"{NAME}{args.tag}_maps.png")
     def rnd(v):  # null (no terminator band under an environment) prints as nan
         return np.round(np.asarray(v, dtype=float), 3).tolist()
 
@@ -374,10 +413,7 @@ def main(argv=None) -> int:
                 print(f"  cos [{b['cos'][0]:+.2f}, {b['cos'][1]:+.2f}] n={b['n']:4d} bias "
                       f"{rnd(b['bias'])} mare {rnd(b['mare'])}")
     for name in SCENES:
-        q = summary[name]["equal_error"]
-        print(f"{name}: {q['setting']} error {q['error']:.3f} in {q['seconds']:.2f} s; Mitsuba at equal error "
-              f"{q['mitsuba_seconds']:.1f} s (slope {q['slope']:.2f}): {q['ratio']:.1f}x, at 1/sqrt(spp) "
-              f"{q['mitsuba_seconds_sqrt']:.1f} s: {q['ratio_sqrt']:.1f}x")
+        print(format_equal_error(name, summary[name]["equal_error"]))
     for name in FIRST_ORDER_REFERENCES.values():
         split = summary[name]["order_split"]
         for part in ("first_order", "orders_2_up"):
