@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import sys
 from pathlib import Path
 
 import numpy as np
@@ -148,6 +149,8 @@ def run(args) -> int:
             write_png(out.with_name(f"{out.stem}_{name}.png"), np.repeat(scaled[..., None], 3, axis=-1))
     paths = write_outputs(out, result.image, result.report, exposure=scene.output.exposure, exr=not args.no_exr,
                           json_path=args.json)
+    for item in plan_warnings(result.report):
+        print(f"warning: {item['name']}: {item['reason'].removeprefix('WARNING: ')}", file=sys.stderr)
     if not args.quiet:
         print(f"rendered {args.scene} ({entry.name}) -> {', '.join(paths.values())}")
         print("  " + summary(result.report))
@@ -155,6 +158,13 @@ def run(args) -> int:
         print("  " + ", ".join(f"{k} {v:.2f} s" for k, v in stages.items())
               + f"; total {result.report['seconds_total']:.2f} s")
     return 0
+
+
+def plan_warnings(report: dict) -> list[dict]:
+    """The plan's items whose reason is a warning (a configuration where the model is known to be off), from a
+    render's report; printed to stderr even with ``--quiet``."""
+    plan = report.get("plan") or {}
+    return [i for i in plan.get("items", ()) if i["reason"].startswith("WARNING")]
 
 
 def summary(report: dict) -> str:

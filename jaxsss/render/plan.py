@@ -184,6 +184,10 @@ def make_plan(scene, *, method: str | None = None, eps: float | None = None, cut
     first_order, why = _first_order(scene, kernel, indirect or self_bounce)
     if kernel != "dipole":
         items.append(PlanItem("first order in the object's geometry", first_order, why))
+    if bssrdf is not None:
+        azimuth = _exit_azimuth(scene)
+        if azimuth is not None:
+            items.append(azimuth)
 
     specular = scene.material.specular_roughness is not None
     items.append(PlanItem("specular highlights", specular,
@@ -240,6 +244,46 @@ def make_plan(scene, *, method: str | None = None, eps: float | None = None, cut
                                                  "directly"))
     return ScenePlan(method, eps, n_samples, shadows, indirect, single, specular, r_cut, shared, tuple(items),
                      kernel, self_bounce, first_order)
+
+
+EXIT_AZIMUTH_BEHIND_DEG = 90.0
+"""A light further than this from the camera, as seen from the object's centre, lights the side the camera does not
+see: the camera then looks at the terminator from the dark side, along the light's flow over the surface."""
+
+
+def _exit_azimuth(scene) -> PlanItem | None:
+    """The plan's line on the exit's missing azimuth (None without a light that has a position or a direction).
+
+    Transport leaves a surface brighter along the light's flow over it than against it (the first azimuthal harmonic
+    of the exit radiance is 0.2-0.6 at a point-lit sphere's terminator); every BSSRDF kernel here exits with no
+    azimuth. With the lights on the camera's side that error cancels the terminator's short exitance; with a light
+    behind the object they add up (docs/path_tracer.md, "Two errors that cancel at the terminator"). The angle is the
+    one between the camera and each light about the centre of the object's bounding box."""
+    centre = np.asarray(scene.mesh.bounds, dtype=float).mean(axis=0)
+    view = np.asarray(scene.camera.position, dtype=float) - centre
+    angles = {}
+    for light in scene.lights:
+        if light.position is not None:
+            to_light = np.asarray(light.position, dtype=float) - centre
+        elif light.direction is not None:
+            to_light = -np.asarray(light.direction, dtype=float)
+        else:  # an environment lights every side
+            continue
+        cos = float(to_light @ view / max(np.linalg.norm(to_light) * np.linalg.norm(view), 1e-300))
+        angles[light.key] = math.degrees(math.acos(min(max(cos, -1.0), 1.0)))
+    if not angles:
+        return None
+    key, worst = max(angles.items(), key=lambda kv: kv[1])
+    if worst > EXIT_AZIMUTH_BEHIND_DEG:
+        return PlanItem("exit azimuth", False,
+                        f"WARNING: {key} is {worst:.0f} degrees from the camera about the object, so the camera sees "
+                        "the terminator from its dark side; the exit has no azimuth (transport leaves brighter along "
+                        "the light's flow) and the terminator's exitance is short: these add up there (skin1 lit "
+                        "from 138 degrees: 31-51% too dark per pixel; docs/path_tracer.md)")
+    return PlanItem("exit azimuth", False,
+                    f"not modelled; every light is within {EXIT_AZIMUTH_BEHIND_DEG:g} degrees of the camera about the "
+                    f"object (at most {worst:.0f}), where its error cancels the terminator's short exitance "
+                    "(docs/path_tracer.md)")
 
 
 def _first_order(scene, kernel: str, indirect: bool) -> tuple[bool, str]:

@@ -54,6 +54,22 @@ def test_render_writes_png_npy_exr_and_report(capsys, tmp_path, small_scene):
         assert key in report
     assert report["resolution"] == [16, 12]
     np.testing.assert_allclose(report["image"]["max"], image.max(axis=(0, 1)))
+    # The light is on the camera's side: the plan notes the exit's missing azimuth and does not warn of it (the
+    # thin sphere's multipole warning is printed).
+    azimuth = next(i for i in report["plan"]["items"] if i["name"] == "exit azimuth")
+    assert not azimuth["reason"].startswith("WARNING") and "warning: exit azimuth" not in err
+
+
+def test_render_warns_when_the_light_is_behind_the_object(capsys, tmp_path, small_scene):
+    """A light behind the sphere (as the camera sees it): the render still runs, and stderr says where the model is
+    known to be off, even with --quiet."""
+    back = tmp_path / "backlit.toml"
+    back.write_text(small_scene.read_text().replace("position = [-20.0, -20.0, 20.0]", "position = [10.0, 30.0, 5.0]"))
+    out = tmp_path / "b.png"
+    code, stdout, err = run_cli(capsys, "render", back, "-o", out, "--method", "direct", "--resolution", 8, 6,
+                                "--no-exr", "--bssrdf", "dipole", "--quiet")
+    assert code == 0, err
+    assert "warning: exit azimuth: light[0] is 1" in err and "degrees from the camera" in err and not stdout
 
 
 def test_render_overrides_and_direct_method(capsys, tmp_path, small_scene):

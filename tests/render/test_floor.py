@@ -32,6 +32,28 @@ def test_plan_of_a_lone_convex_sphere():
     assert plan.explain().splitlines()[0].startswith("+ method")
 
 
+@pytest.mark.parametrize("light, behind", [
+    ({"type": "point", "position": [-20.0, -25.0, 10.0], "intensity": 300.0}, False),  # beside the camera
+    ({"type": "point", "position": [5.0, 40.0, 0.0], "intensity": 300.0}, True),  # behind the sphere
+    ({"type": "directional", "direction": [0.0, -1.0, 0.0], "intensity": 1.0}, True),  # travelling towards the camera
+    ({"type": "directional", "direction": [0.0, 1.0, 0.0], "intensity": 1.0}, False),  # from behind the camera
+])
+def test_plan_says_where_the_exits_missing_azimuth_matters(light, behind):
+    """The exit has no azimuth: the plan notes it, and warns where a light is more than 90 degrees from the camera
+    about the object (the camera then sees the terminator from its dark side, docs/path_tracer.md)."""
+    scene = _scene(lights=[light])
+    item = {i.name: i for i in make_plan(scene, bssrdf="auto").items}["exit azimuth"]
+    assert not item.included and item.reason.startswith("WARNING") == behind
+    assert ("light[0] is" in item.reason) == behind
+    # The angle: camera at (0, -30, 10) and the light about the sphere's centre.
+    view = np.array([0.0, -30.0, 10.0])
+    to_light = np.asarray(light.get("position", -np.asarray(light.get("direction", [0, 0, 0]), float)), float)
+    angle = math.degrees(math.acos(view @ to_light / np.linalg.norm(view) / np.linalg.norm(to_light)))
+    assert f"{angle:.0f}" in item.reason
+    # Methods with their own transport model (no bssrdf) have no such line.
+    assert "exit azimuth" not in {i.name for i in make_plan(scene).items}
+
+
 def test_plan_switches_and_forced_settings():
     floor = [{"builtin": "slab", "width": 80.0, "depth": 80.0, "thickness": 1.0, "translate": [0.0, 0.0, -6.0]}]
     plan = make_plan(_scene(occluders=floor))
