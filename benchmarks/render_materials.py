@@ -67,7 +67,8 @@ ALBEDO_GOAL = 0.9
 
 
 def albedo(scene) -> np.ndarray:
-    """The single-scattering albedo ``sigma_s' / (sigma_a + sigma_s')`` per channel, ``(C,)``."""
+    """The reduced albedo ``alpha' = sigma_s' / (sigma_a + sigma_s')`` per channel, ``(C,)``: the albedo of the
+    Jensen 2001 table and of the issue's goal (the single-scattering albedo where ``g = 0``)."""
     medium = scene.material.medium
     sigma_a, sigma_s = np.asarray(medium.sigma_a), np.asarray(medium.sigma_s_prime)
     return sigma_s / (sigma_a + sigma_s)
