@@ -14,8 +14,9 @@ and a Mitsuba reference at thousands of spp would take days on this machine.
 References: ``benchmarks/references/materials/<name>.toml`` (the scene), ``.npz`` (``image`` (H, W, 3) linear
 radiance, ``coverage`` (H, W)) and ``.json`` (spp, seeds, seconds, the reference's own noise), made by
 ``--references [NAME ...]`` (Mitsuba ``volpathmis`` at :data:`REFERENCE_SPP`, two halves with seeds 0 and 1; slow:
-whole milk takes about 30 min). They judge the renderer here; no test reads them, and they were not used to set any
-constant of the renderer (they were rendered after its constants, to check them).
+whole milk takes about 30 min). They judge the renderer here; no test compares an image with them (one checks that
+they are complete), and they were not used to set any constant of the renderer (they were rendered after its
+constants, to check them).
 
 Rows (one per scene and renderer setting): jaxsss ``render(scene)`` with the plan's own method, kernel and eps
 (the default a user gets), timed after one warm-up render (compilation apart, ``compile_seconds``); Mitsuba at
