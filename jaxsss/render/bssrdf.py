@@ -81,6 +81,11 @@ orders >= 2). A convex surface's light leaves less grazing than a half-space's: 
 weighted by an amplitude ``c(kappa l_u, d / l_u)`` of the pair's curvature and distance too, which leaves by ``X_2
 phi(mu_o)`` (:mod:`jaxsss.render.exit_curvature`).
 
+The exit's current (exit model ``"multiple-current"``, kept by the scene plan where a light is behind the object):
+light leaves brighter along its flow over the surface, away from where it entered. The sums carry each node's
+current too, three rows of ``a(d / l_u)`` times the pair's tangential direction, which leave by ``t_o Y(mu_o)``
+where the view looks along the flow (:mod:`jaxsss.render.exit_current`).
+
 Which kernel a scene gets is the scene plan's decision (:func:`choose_bssrdf`): ``white-oblique`` for every ``g <
 FORWARD_G`` and ``eta`` in the family's range, the dipole with its reason otherwise (``g >= FORWARD_G``, ``eta`` or
 ``g`` outside the family, or per channel). The oblique tables are looked up by :func:`white_table` only.
@@ -104,7 +109,8 @@ from jaxsss.render.curvature import N_KAPPA, curvature_coordinate, log_ratio_tab
 from jaxsss.render.exit_direction import anisotropic_exit_distribution
 
 __all__ = ["BSSRDFS", "GRID_PER_DECADE", "OBLIQUE_MUS", "WhiteKernel", "albedo_correction", "chandrasekhar_h",
-           "choose_bssrdf", "directional_albedo", "exit_distribution", "exit_radiance_nodes", "exit_weights",
+           "choose_bssrdf", "current_radiance", "directional_albedo", "exit_distribution", "exit_radiance_nodes",
+           "exit_weights",
            "half_space_reflection", "hat_weights", "multiple_exit_distribution", "multiple_orders",
            "refracted_exit_distribution", "shift_ratio_table", "surface_tangents", "incident_flux", "oblique_dir",
            "oblique_pairs",
@@ -611,6 +617,10 @@ class WhiteKernel(eqx.Module):
     # cells (jaxsss.render.exit_curvature.curved_amplitude_cells); the sums then carry 2K nodes, each node's exitance
     # then its exitance weighted by c(kappa, d).
     exit_curved: tuple | None = None
+    # The exit's current (None: off; with exit_curved): sigma_t' (C,) and the normal-incidence amplitude a(d) (D, C)
+    # (jaxsss.render.exit_current); the sums then carry 3K more rows, each node's exitance times a(d) and the
+    # pair's tangential direction from the node's (shifted) entry (x, y, z).
+    exit_current: tuple | None = None
     # The near field's mean flux density weighted by w R instead of w (a profile without the first order's peak:
     # :func:`multiple_orders`; :meth:`near_terms`).
     profile_weighted_near: bool = eqx.field(static=True, default=False)
@@ -649,17 +659,23 @@ class WhiteKernel(eqx.Module):
         return jnp.exp(log_r) * self.sigma_s**2
 
     def value_shape(self, flux_shape, weighted: bool = False):
-        """One pair's value: ``(K, C)`` node exitances (``(2K, C)`` with the exit by distance), or ``(C,)`` radiance
-        when the sums pass exit ``weights`` (:meth:`pair`)."""
+        """One pair's value: ``(R K, C)`` node rows (:attr:`rows_per_node` ``R``), or ``(C,)`` radiance when the sums
+        pass exit ``weights`` (:meth:`pair`)."""
         k, c = flux_shape[-2:]
         if weighted:
             return (c,)
-        return (2 * k, c) if self.split else (k, c)
+        return (self.rows_per_node * k, c)
 
     @property
     def split(self) -> bool:
         """Whether the sums carry a second exitance per node: the exit by distance or on a curved surface."""
         return self.exit_split is not None or self.exit_curved is not None
+
+    @property
+    def rows_per_node(self) -> int:
+        """The sums' rows per incidence node: the exitance, its second exit's part (:attr:`split`), and the
+        current's three components (:attr:`exit_current`)."""
+        return 1 + int(self.split) + 3 * int(self.exit_current is not None)
 
     def _amplitude(self, delta, normals=None):
         """``(P, K, C)``: the second exit's amplitude per pair. By distance: ``c(d)`` at the pairs' distance ``d``
@@ -681,14 +697,37 @@ class WhiteKernel(eqx.Module):
         kappa = jnp.maximum(pair_curvature(delta, normals[0][:, :3], normals[1]), 0.0)[:, None, None]
         return curved_amplitude_at(cells, kappa / sigma_t_prime, d * sigma_t_prime)
 
-    def _split(self, v, delta, normals=None):
-        """``(P, K, C)`` -> ``(P, 2K, C)``: each node's ``v`` then ``c v`` (:meth:`_amplitude`); unchanged without
-        the split."""
+    def _current(self, delta, sources, normals=None):
+        """``(P, 3, K, C)``: each pair's current per unit exitance, ``a(r / l_u) t``, about each node's (shifted)
+        entry at distance ``r``: ``t`` the tangential part of the offset from that entry at the shaded point, unit
+        length (:mod:`jaxsss.render.exit_current`); 0 without the shaded points' normals."""
+        from jaxsss.render.exit_current import current_amplitude_at, tangential_unit
+
+        sigma_t_prime, table = self.exit_current
+        k, c = sources.shape[-2:]
+        if normals is None:
+            return jnp.zeros((delta.shape[0], 3, k, c), table.dtype)
+        d = jnp.broadcast_to(delta[:, :, None, None], (delta.shape[0], 3, k, c))
+        if self.shift_length is not None:
+            d = d - sources[:, 1:4]
+        r = jnp.sqrt(jnp.maximum(jnp.sum(d * d, axis=1), 1e-300))  # (P, K, C)
+        # Fick's flow away from the entry, a(d / l_u) of the half-space's walk at normal incidence.
+        t = jnp.moveaxis(tangential_unit(jnp.moveaxis(d, 1, -1), normals[0][:, None, None, :3]), -1, 1)
+        return current_amplitude_at(table, r * sigma_t_prime)[:, None] * t
+
+    def _split(self, v, delta, normals=None, sources=None):
+        """``(P, K, C)`` -> ``(P, R K, C)`` (:attr:`rows_per_node` ``R``): each node's ``v``, then ``c v``
+        (:meth:`_amplitude`), then its current ``v a t`` per component (:meth:`_current`); unchanged without the
+        split."""
         if not self.split:
             return v
-        return jnp.concatenate([v, self._amplitude(delta, normals) * v], axis=1)
+        rows = [v, self._amplitude(delta, normals) * v]
+        if self.exit_current is not None:
+            current = self._current(delta, sources, normals)
+            rows += [v * current[:, i] for i in range(3)]
+        return jnp.concatenate(rows, axis=1)
 
-    def _radiance(self, v, delta, weights, normals=None):
+    def _radiance(self, v, delta, weights, normals=None, sources=None):
         """``(P, C)``: the pairs' node values ``v`` ``(P, K, C)`` as radiance, ``sum_k v_k (W_k + c_k W_K+k)`` with
         the shaded points' exit ``weights`` ``(P, J, C)`` (:func:`exit_weights`; ``J = K`` without the split) and
         the amplitude ``c`` of :meth:`_amplitude`. Each ``v_k`` is used once: with the split's two uses XLA computed
@@ -696,7 +735,12 @@ class WhiteKernel(eqx.Module):
         k = v.shape[1]
         if not self.split:
             return jnp.sum(v * weights, axis=1)
-        return jnp.sum(v * (weights[:, :k] + self._amplitude(delta, normals) * weights[:, k:]), axis=1)
+        w = weights[:, :k] + self._amplitude(delta, normals) * weights[:, k:2 * k]
+        if self.exit_current is not None:
+            current = self._current(delta, sources, normals)
+            # The current's rows, weighted by the view's tangential direction: a t . t_o Y_k.
+            w = w + sum(current[:, i] * weights[:, (2 + i) * k:(3 + i) * k] for i in range(3))
+        return jnp.sum(v * w, axis=1)
 
     def sources(self, flux):
         """What the sums gather per entity, from its flux: with a shift, ``(E, 4, K, C)`` incident flux ``F_k`` and
@@ -791,9 +835,9 @@ class WhiteKernel(eqx.Module):
         v = self._curved(r, delta, normals) * f
         view = self._view_kept(delta, normals)  # (P, 1, C) or 1
         if weights is None:
-            return self._split(v * view, delta, normals)
+            return self._split(v * view, delta, normals, sources)
         # The eye's cut after the sum over the nodes (it is the same for all of them).
-        return self._radiance(v, delta, weights, normals) * (view[:, 0] if jnp.ndim(view) else view)
+        return self._radiance(v, delta, weights, normals, sources) * (view[:, 0] if jnp.ndim(view) else view)
 
     def near_terms(self, delta, sources, area, rho0, normals=None, weights=None):
         """A near pair's ``(point, w F, w A)``, each ``(P, K, C)``, with the near-field weight at the distance from
@@ -813,8 +857,8 @@ class WhiteKernel(eqx.Module):
         w = near_weight(r, rho0)
         curved = self._curved(r, delta, normals)
         point = (1.0 - w) * curved * f
-        point = (self._split(point, delta, normals) if weights is None
-                 else self._radiance(point, delta, weights, normals))
+        point = (self._split(point, delta, normals, sources) if weights is None
+                 else self._radiance(point, delta, weights, normals, sources))
         # The disc's mean flux density: weighted by w, or by w R where R has no first-order peak (a kink in the light
         # within rho_0, a point light's terminator, is then where the profile puts it).
         q = w * curved if self.profile_weighted_near else w
@@ -837,18 +881,20 @@ class WhiteKernel(eqx.Module):
             c = amplitude_at(table, r[:, None, None] * sigma_t_prime)
             return jnp.concatenate([jnp.sum(f, axis=0), jnp.sum(c * f, axis=0)])
         if self.exit_curved is not None:
-            # On a curved surface the disc leaves as on a plane (c = 0 within rho_0: jaxsss.render.exit_curvature).
-            return jnp.concatenate([jnp.sum(f, axis=0), jnp.zeros_like(f[0])])
+            # On a curved surface the disc leaves as on a plane (c = 0 within rho_0: jaxsss.render.exit_curvature),
+            # and with no current (its light enters all around the shaded point: jaxsss.render.exit_current).
+            return jnp.concatenate([jnp.sum(f, axis=0)] + [jnp.zeros_like(f[0])] * (self.rows_per_node - 1))
         return jnp.sum(f, axis=0)
 
     def disc(self, spread, rho0):
-        """``(Q, K, C)``: ``E_k I_w,k`` for the near field's mean incident flux density ``spread`` ``(Q, K, C)``
-        (``(Q, 2K, C)``, then the ``c(d)``-weighted parts, with the exit by distance)."""
+        """``(Q, R K, C)``: ``E_k I_w,k`` for the near field's mean incident flux density ``spread`` ``(Q, K, C)``,
+        per row of :meth:`weighted_disc` (:attr:`rows_per_node` ``R``: then the second exit's parts, and the
+        current's, which are 0)."""
         wd = self.weighted_disc(rho0)
         if not self.split:
             return spread * wd
         k = spread.shape[1]
-        return jnp.concatenate([spread * wd[:k], spread * wd[k:]], axis=1)
+        return jnp.concatenate([spread * wd[i * k:(i + 1) * k] for i in range(self.rows_per_node)], axis=1)
 
 
 def shift_ratio_table(g: float) -> np.ndarray:
@@ -899,7 +945,8 @@ def _log(x):
 
 def white_kernel(medium: Medium, sources: WhiteSources, mus: tuple = (1.0,) + KERNEL_MUS,
                  shift: bool = False, curvature: bool = False, passage: float | None = None,
-                 exit_split: bool = False, first_order: bool = False, exit_curved: bool = False) -> WhiteKernel:
+                 exit_split: bool = False, first_order: bool = False, exit_curved: bool = False,
+                 exit_current: bool = False) -> WhiteKernel:
     """Tabulate the profiles at incidence cosines ``mus`` (1, then the oblique nodes of ``sources``, from
     :func:`white_tables`) for ``medium`` on the grid (differentiable in ``sigma_a`` and ``sigma_s'``): normal incidence
     from the white Monte Carlo family, oblique nodes from ``sources`` (module docstring). ``shift``: shift the
@@ -913,7 +960,9 @@ def white_kernel(medium: Medium, sources: WhiteSources, mus: tuple = (1.0,) + KE
     (:mod:`jaxsss.render.exit_distance`). ``first_order``: the profiles keep orders >= 2 only (the renderer marches
     the first in the object's geometry, :mod:`jaxsss.render.first_order`; :func:`multiple_orders`). ``exit_curved``
     (with ``first_order``): the sums carry each node's exitance and its part weighted by the curved-exit amplitude
-    ``c(kappa, d)`` of the pair (:mod:`jaxsss.render.exit_curvature`)."""
+    ``c(kappa, d)`` of the pair (:mod:`jaxsss.render.exit_curvature`). ``exit_current`` (with ``exit_curved``): the
+    sums carry each node's current too, three rows of ``a(d)`` times the pair's tangential direction from the node's
+    entry (:mod:`jaxsss.render.exit_current`)."""
     from jaxsss.mc.white_family import load_white_family
     from jaxsss.render.passage import passage_cells, passage_loss_table
 
@@ -952,6 +1001,17 @@ def white_kernel(medium: Medium, sources: WhiteSources, mus: tuple = (1.0,) + KE
         cells = curved_amplitude_cells(curved_amplitude(mus, jnp.broadcast_to(medium.alpha_prime, c)))
         kernel = eqx.tree_at(lambda k: k.exit_curved, kernel,
                              (jnp.broadcast_to(medium.sigma_a + medium.sigma_s_prime, c), cells),
+                             is_leaf=lambda x: x is None)
+    if exit_current:
+        from jaxsss.render.exit_current import current_amplitude
+
+        if not exit_curved:
+            raise ValueError("white_kernel(exit_current=True) needs exit_curved=True (the current's rows follow the "
+                             "curved exit's)")
+        c = kernel.sigma_s.shape
+        kernel = eqx.tree_at(lambda k: k.exit_current, kernel,
+                             (jnp.broadcast_to(medium.sigma_a + medium.sigma_s_prime, c),
+                              current_amplitude(jnp.broadcast_to(medium.alpha_prime, c))),
                              is_leaf=lambda x: x is None)
     if not curvature:
         return kernel
@@ -1068,7 +1128,7 @@ def _white_kernel(medium: Medium, sources: WhiteSources, mus: tuple, shift: bool
     return WhiteKernel(log_R - 2.0 * jnp.log(sigma_s), sigma_s, length)
 
 
-def exit_radiance_nodes(medium: Medium, exitance, cos_o, mus, model: str, azimuth=None):
+def exit_radiance_nodes(medium: Medium, exitance, cos_o, mus, model: str, azimuth=None, view_tangent=None):
     """Radiance towards the eye, ``(Q, C)`` W/(mm^2 sr), from the exitance of each incidence node ``(Q, K, C)``.
 
     ``model="chandrasekhar"`` (index-matched boundary, ``g = 0``): ``L = sum_k M_k X(mu_o | mu_k) / pi`` with
@@ -1079,23 +1139,42 @@ def exit_radiance_nodes(medium: Medium, exitance, cos_o, mus, model: str, azimut
     ``"multiple"`` (index-matched, ``g = 0``, the first order marched apart: :mod:`jaxsss.render.first_order`): the
     orders >= 2 only, by :func:`multiple_exit_distribution`. ``"multiple-curved"``: the same with ``exitance`` ``(Q,
     2K, C)``, each node's exitance and its part weighted by the curved-exit amplitude, leaving by ``X_2`` and ``X_2
-    phi`` (:func:`jaxsss.render.exit_curvature.curved_exit_distribution`).
+    phi`` (:func:`jaxsss.render.exit_curvature.curved_exit_distribution`). ``"multiple-current"``: the same with
+    ``exitance`` ``(Q, 5K, C)``, the current's three components last, leaving by ``t_o Y_k`` (``view_tangent`` ``(Q,
+    3)``) where the view looks along the light's flow and not at all against it (:func:`current_radiance`).
     ``"anisotropic"`` (index-matched, ``g > 0``): the same with the Monte Carlo exit distribution of a
     forward-scattering half-space, which depends on the azimuth between the light's travel and the view
     (:func:`jaxsss.render.exit_direction.anisotropic_exit_distribution`; ``azimuth`` ``(Q, H - 1)`` its
     :func:`~jaxsss.render.exit_direction.azimuth_harmonics`). ``"refracted"`` (a dielectric boundary): the same with
     :func:`refracted_exit_distribution`. ``"fresnel"``: the dipole renderer's Lambertian exit through the boundary,
     ``F_t(cos_o) sum_k M_k / (pi F_dt,ext)`` (:func:`jaxsss.render.radiance.exit_radiance`)."""
+    w = exit_weights(medium, cos_o, mus, model, exitance.shape[1], exitance.shape[-1], azimuth, view_tangent)
+    if model == "multiple-current":
+        k = len(mus)
+        # The exitance's rows, then the current's along the flow only (jaxsss.render.exit_current).
+        return current_radiance(jnp.sum(exitance[:, :2 * k] * w[:, :2 * k], axis=1),
+                                jnp.sum(exitance[:, 2 * k:] * w[:, 2 * k:], axis=1))
     # The exit is linear in the nodes' exitance.
-    return jnp.sum(exitance * exit_weights(medium, cos_o, mus, model, exitance.shape[1], exitance.shape[-1], azimuth),
-                   axis=1)
+    return jnp.sum(exitance * w, axis=1)
 
 
-def exit_weights(medium: Medium, cos_o, mus, model: str, n_nodes: int, n_channels: int, azimuth=None):
+def current_radiance(radiance, current):
+    """``(Q, C)``: the exit's radiance ``radiance`` plus the current's ``current`` (both ``(Q, C)`` W/(mm^2 sr),
+    :func:`exit_weights` ``"multiple-current"``'s two parts) where it is positive, the view along the light's flow.
+    Against the flow the current is left out: there the kernels' exitance is short by about as much (a sphere's
+    terminator seen from the light's side, :mod:`jaxsss.render.exit_current`)."""
+    # L = L_M + max(t_o . J Y, 0).
+    return radiance + jnp.maximum(current, 0.0)
+
+
+def exit_weights(medium: Medium, cos_o, mus, model: str, n_nodes: int, n_channels: int, azimuth=None,
+                 view_tangent=None):
     """``(Q, J, C)``: the radiance towards the eye (W/(mm^2 sr)) per unit exitance (W/mm^2) of each of the ``J =
     n_nodes`` node rows, at exit cosines ``cos_o`` ``(Q,)``, so that :func:`exit_radiance_nodes` is ``sum_j M_j W_j``
     (models and arguments as there). The sums take them per shaded point and add each pair's nodes as radiance
-    (:meth:`WhiteKernel.pair` with ``weights``)."""
+    (:meth:`WhiteKernel.pair` with ``weights``). ``"multiple-current"``: ``"multiple-curved"``'s ``2K`` rows, then the
+    current's ``3K``, ``t_o,i Y_k(mu_o)`` with ``view_tangent`` ``(Q, 3)`` the unit tangential part ``t_o`` of the
+    direction to the eye (:func:`jaxsss.render.exit_current.current_exit_distribution`)."""
     from jaxsss.render.radiance import exit_radiance
 
     mu_o = jnp.clip(cos_o, 0.0, 1.0)
@@ -1122,6 +1201,16 @@ def exit_weights(medium: Medium, cos_o, mus, model: str, n_nodes: int, n_channel
         from jaxsss.render.exit_curvature import curved_exit_distribution
 
         x = curved_exit_distribution(mu_o, mus, albedo)
+    elif model == "multiple-current":
+        from jaxsss.render.exit_current import current_exit_distribution
+        from jaxsss.render.exit_curvature import curved_exit_distribution
+
+        if view_tangent is None:
+            raise ValueError("exit_weights(model='multiple-current') needs view_tangent=(Q, 3), the unit tangential "
+                             "part of the direction to the eye")
+        y = current_exit_distribution(mu_o, mus, albedo)  # (Q, K, C)
+        x = jnp.concatenate([curved_exit_distribution(mu_o, mus, albedo)]
+                            + [view_tangent[:, i, None, None] * y for i in range(3)], axis=1)
     else:
         x = exit_distribution(mu_o, jnp.asarray(mus), albedo)
     # Exit by Chandrasekhar's reflection function, node by node.

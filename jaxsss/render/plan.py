@@ -75,6 +75,7 @@ class ScenePlan(NamedTuple):
     bssrdf: str = "dipole"
     self_bounce: bool = False
     first_order: bool = False
+    exit_current: bool = False
 
     def explain(self) -> str:
         """The plan as text, one line per decision."""
@@ -184,10 +185,12 @@ def make_plan(scene, *, method: str | None = None, eps: float | None = None, cut
     first_order, why = _first_order(scene, kernel, indirect or self_bounce)
     if kernel != "dipole":
         items.append(PlanItem("first order in the object's geometry", first_order, why))
+    exit_current = False
     if bssrdf is not None:
-        azimuth = _exit_azimuth(scene)
+        azimuth = _exit_azimuth(scene, first_order)
         if azimuth is not None:
             items.append(azimuth)
+            exit_current = azimuth.included
 
     specular = scene.material.specular_roughness is not None
     items.append(PlanItem("specular highlights", specular,
@@ -243,7 +246,7 @@ def make_plan(scene, *, method: str | None = None, eps: float | None = None, cut
         items.append(PlanItem("occluders", True, f"{len(scene.occluders)} opaque Lambertian object(s) shaded "
                                                  "directly"))
     return ScenePlan(method, eps, n_samples, shadows, indirect, single, specular, r_cut, shared, tuple(items),
-                     kernel, self_bounce, first_order)
+                     kernel, self_bounce, first_order, exit_current)
 
 
 EXIT_AZIMUTH_BEHIND_DEG = 90.0
@@ -251,14 +254,15 @@ EXIT_AZIMUTH_BEHIND_DEG = 90.0
 see: the camera then looks at the terminator from the dark side, along the light's flow over the surface."""
 
 
-def _exit_azimuth(scene) -> PlanItem | None:
-    """The plan's line on the exit's missing azimuth (None without a light that has a position or a direction).
+def _exit_azimuth(scene, first_order: bool) -> PlanItem | None:
+    """The plan's line on the exit's azimuth (None without a light that has a position or a direction).
 
     Transport leaves a surface brighter along the light's flow over it than against it (the first azimuthal harmonic
-    of the exit radiance is 0.2-0.6 at a point-lit sphere's terminator); every BSSRDF kernel here exits with no
-    azimuth. With the lights on the camera's side that error cancels the terminator's short exitance; with a light
-    behind the object they add up (docs/path_tracer.md, "Two errors that cancel at the terminator"). The angle is the
-    one between the camera and each light about the centre of the object's bounding box."""
+    of the exit radiance is 0.2-0.6 at a point-lit sphere's terminator). With the lights on the camera's side the
+    camera looks against the flow at the terminator, and the kernels' short exitance there stands in for the
+    azimuth's loss; with a light behind the object it looks along the flow. There the exit's current is kept
+    (:mod:`jaxsss.render.exit_current`; the orders >= 2 of a marched first order only), along the flow only. The
+    angle is the one between the camera and each light about the centre of the object's bounding box."""
     centre = np.asarray(scene.mesh.bounds, dtype=float).mean(axis=0)
     view = np.asarray(scene.camera.position, dtype=float) - centre
     angles = {}
@@ -274,16 +278,24 @@ def _exit_azimuth(scene) -> PlanItem | None:
     if not angles:
         return None
     key, worst = max(angles.items(), key=lambda kv: kv[1])
-    if worst > EXIT_AZIMUTH_BEHIND_DEG:
+    if worst <= EXIT_AZIMUTH_BEHIND_DEG:
         return PlanItem("exit azimuth", False,
+                        f"not modelled; every light is within {EXIT_AZIMUTH_BEHIND_DEG:g} degrees of the camera about "
+                        f"the object (at most {worst:.0f}), where its error cancels the terminator's short exitance "
+                        "(docs/path_tracer.md)")
+    if first_order:
+        return PlanItem("exit azimuth", True,
                         f"WARNING: {key} is {worst:.0f} degrees from the camera about the object, so the camera sees "
-                        "the terminator from its dark side; the exit has no azimuth (transport leaves brighter along "
-                        "the light's flow) and the terminator's exitance is short: these add up there (skin1 lit "
-                        "from 138 degrees: 31-51% too dark per pixel; docs/path_tracer.md)")
+                        "the terminator along the light's flow: the exit's current is added where the view looks "
+                        "along it (jaxsss.render.exit_current; two sums, 1.4-1.6x the time), and the terminator's "
+                        "short exitance is left: skin1 lit from 138 degrees is 10-15% too dark at the terminator and "
+                        "35-50% past it (docs/path_tracer.md)")
     return PlanItem("exit azimuth", False,
-                    f"not modelled; every light is within {EXIT_AZIMUTH_BEHIND_DEG:g} degrees of the camera about the "
-                    f"object (at most {worst:.0f}), where its error cancels the terminator's short exitance "
-                    "(docs/path_tracer.md)")
+                    f"WARNING: {key} is {worst:.0f} degrees from the camera about the object, so the camera sees "
+                    "the terminator from its dark side; this kernel's exit has no azimuth (transport leaves brighter "
+                    "along the light's flow; the exit's current needs the first order marched) and the terminator's "
+                    "exitance is short: these add up there (skin1 lit from 138 degrees: 31-51% too dark per pixel; "
+                    "docs/path_tracer.md)")
 
 
 def _first_order(scene, kernel: str, indirect: bool) -> tuple[bool, str]:

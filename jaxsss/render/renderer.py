@@ -22,8 +22,8 @@ from tqdm import tqdm
 from jaxsss._config import render_jit, to_device
 from jaxsss.medium import Medium
 from jaxsss.render import radiance as rad
-from jaxsss.render.bssrdf import (albedo_correction, exit_model_for, exit_weights, incident_flux, shift_reach,
-                                  surface_tangents, white_kernel, white_tables)
+from jaxsss.render.bssrdf import (albedo_correction, current_radiance, exit_model_for, exit_weights, incident_flux,
+                                  shift_reach, surface_tangents, white_kernel, white_tables)
 from jaxsss.render.passage import PASSAGE_FLOOR, cut_matters, interaction_probability, truncated_travel, view_chords
 from jaxsss.render.camera import camera_frame
 from jaxsss.render.first_order import first_order_radiance
@@ -36,7 +36,13 @@ from jaxsss.render.mirror import ReflectingPoints, mirror_field
 from jaxsss.render.samples import irradiance_samples
 from jaxsss.render.shading import ShadingPoints, point_shading, shaded_fields, shading_points
 
-__all__ = ["Prepared", "assemble_prepared", "irradiance_pass", "prepare"]
+__all__ = ["EXIT_ROWS", "MARCHED_EXITS", "Prepared", "assemble_prepared", "irradiance_pass", "prepare"]
+
+MARCHED_EXITS = ("multiple", "multiple-curved", "multiple-current")
+"""The white kernels' exit models with the first order marched apart (the kernel holds the orders >= 2)."""
+EXIT_ROWS = {"distance": 2, "multiple-curved": 2, "multiple-current": 5}
+"""The sums' rows per incidence node of each exit model (1 for the others): the exitance, a second exit's part, and
+the current's three components (:attr:`jaxsss.render.bssrdf.WhiteKernel.rows_per_node`)."""
 
 class Prepared(ReflectingPoints):
     """Everything an image needs except the material. Arrays are sorted for the sums; see :func:`prepare`.
@@ -120,7 +126,7 @@ class Prepared(ReflectingPoints):
                     g = 0.0 if medium.g is None else medium.g
                     irradiance = irradiance * interaction_probability(
                         self.light_chord, medium.sigma_a + medium.sigma_s_prime / (1.0 - g))
-            index_matched = ("chandrasekhar", "distance", "anisotropic", "multiple", "multiple-curved")
+            index_matched = ("chandrasekhar", "distance", "anisotropic") + MARCHED_EXITS
             if self.bssrdf_exit in index_matched and len(self.bssrdf_mus) > 1:
                 # Index-matched: the node mix reflects Chandrasekhar's exact total at every incidence cosine (for
                 # g > 0 the isotropic equivalent's: its curve in mu has the same shape within a few per cent). With
@@ -152,8 +158,9 @@ class Prepared(ReflectingPoints):
                             curvature=self.ent_normal is not None,
                             passage=PASSAGE_FLOOR * self.rho0 if self.passage_cut else None,
                             exit_split=self.bssrdf_exit == "distance",
-                            first_order=self.bssrdf_exit in ("multiple", "multiple-curved"),
-                            exit_curved=self.bssrdf_exit == "multiple-curved")
+                            first_order=self.bssrdf_exit in MARCHED_EXITS,
+                            exit_curved=self.bssrdf_exit in ("multiple-curved", "multiple-current"),
+                            exit_current=self.bssrdf_exit == "multiple-current")
 
     @property
     def normals(self):
@@ -188,9 +195,10 @@ class Prepared(ReflectingPoints):
         shaded points (:func:`jaxsss.render.bssrdf.exit_weights`), or None for the dipole."""
         if self.exit_nodes is None:
             return None
-        n_nodes = len(self.bssrdf_mus) * (2 if self.bssrdf_exit in ("distance", "multiple-curved") else 1)
+        n_nodes = len(self.bssrdf_mus) * EXIT_ROWS.get(self.bssrdf_exit, 1)
         n_channels = jnp.broadcast_shapes(self.light_irradiance.shape[-1:], jnp.shape(medium.sigma_a)[-1:])[0]
-        return exit_weights(medium, self.cos_o, *self.exit_nodes, n_nodes, n_channels, self.exit_azimuth)
+        return exit_weights(medium, self.cos_o, *self.exit_nodes, n_nodes, n_channels, self.exit_azimuth,
+                            self.view_tangent)
 
     def diffusion_radiance(self, medium: Medium):
         """The diffusion radiance towards the eye at the shaded points, ``(Q, C)`` W/(mm^2 sr). A white kernel's
@@ -200,6 +208,12 @@ class Prepared(ReflectingPoints):
         weights = self.exit_weights(medium)
         if weights is None:
             return rad.exit_radiance(medium, self.exitance(medium), self.cos_o)
+        if self.bssrdf_exit == "multiple-current":
+            # Two sums, the exitance's rows and the current's, which is kept along the flow only (its sign per shaded
+            # point: jaxsss.render.bssrdf.current_radiance).
+            k = len(self.bssrdf_mus)
+            return current_radiance(self.exitance(medium, weights=weights.at[:, 2 * k:].set(0.0)),
+                                    self.exitance(medium, weights=weights.at[:, :2 * k].set(0.0)))
         return self.exitance(medium, weights=weights)
 
     def exitance_gradient(self, medium: Medium, *, near: bool = True):
@@ -294,8 +308,10 @@ def assemble_prepared(scene, plan: ScenePlan, samples, tree, shading: ShadingPoi
         mus, tables = white_tables(0.0 if medium.g is None else float(medium.g), float(medium.eta),
                                    oblique=plan.bssrdf == "white-oblique")
         # The first order marched in the geometry (plan.first_order): the profiles keep orders >= 2 and leave by
-        # their own exit distribution, less grazing on a curved surface (jaxsss.render.exit_curvature).
-        exit_model = "multiple-curved" if shading.first_order is not None else exit_model_for(medium)
+        # their own exit distribution, less grazing on a curved surface (jaxsss.render.exit_curvature), and brighter
+        # along the light's flow where the plan keeps the current (jaxsss.render.exit_current).
+        exit_model = (("multiple-current" if plan.exit_current else "multiple-curved")
+                      if shading.first_order is not None else exit_model_for(medium))
         if plan.bssrdf == "white-oblique":
             tangent = to_device(surface_tangents(samples.light.to_light[order], samples.normals[order],
                                                  float(medium.eta)))

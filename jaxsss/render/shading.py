@@ -260,6 +260,14 @@ class ShadedPoints(eqx.Module):
         """``(Q,)``: the cosine between each shaded point's normal and the direction to the eye (clipped to [0, 1])."""
         return jnp.clip(jnp.sum(self.query_normal * self.to_eye, axis=-1), 0.0, 1.0)
 
+    @property
+    def view_tangent(self):
+        """``(Q, 3)``: the unit tangential part of the direction to the eye at each shaded point (0 along the
+        normal; the exit's current, :mod:`jaxsss.render.exit_current`)."""
+        from jaxsss.render.exit_current import tangential_unit
+
+        return tangential_unit(self.to_eye, self.query_normal)
+
     def radiance_from_exitance(self, medium: Medium, exitance, exit_nodes=None):
         """Radiance towards the eye at the shaded points, ``(Q, C)`` W/(mm^2 sr): diffusion plus the optional
         single-scattering and specular terms.
@@ -269,7 +277,8 @@ class ShadedPoints(eqx.Module):
         if exit_nodes is None:
             out = rad.exit_radiance(medium, exitance, self.cos_o)
         else:
-            out = exit_radiance_nodes(medium, exitance, self.cos_o, *exit_nodes, azimuth=self.exit_azimuth)
+            out = exit_radiance_nodes(medium, exitance, self.cos_o, *exit_nodes, azimuth=self.exit_azimuth,
+                                      view_tangent=self.view_tangent)
         return self.radiance_from_diffusion(medium, out)
 
     def radiance_from_diffusion(self, medium: Medium, diffusion):

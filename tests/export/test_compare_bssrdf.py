@@ -249,3 +249,23 @@ def test_forward_scattering_sphere_against_its_path_traced_reference():
     assert all(b["n"] > 100 and np.all(np.abs(b["bias"]) <= 0.04) for b in by_cos), by_cos
     old = compare_images(render(scene, bssrdf="dipole").image, ref, pixels, coverage=coverage)
     assert np.any(np.abs(np.array(old["sum_ratio"]) - 1.0) > 0.03), old["sum_ratio"]
+
+
+def test_skin1_lit_from_behind_against_its_path_traced_reference():
+    """The skin1 sphere with the point light at 138 degrees from the camera about it (the benchmark's reference,
+    benchmarks/references/materials; 32768 spp): the camera sees the terminator along the light's flow, which the plan
+    says, and keeps the exit's current there (jaxsss.render.exit_current). The goals are missed. Achieved (2026-11-29):
+    mare_lit 0.327 / 0.222 / 0.209, band 0.183 / 0.183 / 0.221, sums 0.801 / 0.882 / 0.912; the exitance past the
+    terminator is still short (docs/path_tracer.md, "Two errors that cancel at the terminator"). Without the current:
+    0.507 / 0.387 / 0.306, band 0.346 / 0.327 / 0.324, sums 0.660 / 0.781 / 0.856. Bounds: the achieved level + 10%."""
+    directory = Path(__file__).parents[2] / "benchmarks" / "references" / "materials"
+    scene = load_scene(directory / "skin1_sphere_backlit.toml")
+    data = np.load(directory / "skin1_sphere_backlit.npz")
+    result = render(scene)
+    azimuth = next(i for i in result.report["plan"]["items"] if i["name"] == "exit azimuth")
+    assert azimuth["included"] and azimuth["reason"].startswith("WARNING") and result.report["plan"]["exit_current"]
+    m = compare_images(result.image, data["image"].astype(np.float64), pixel_geometry(scene),
+                       coverage=data["coverage"].astype(np.float64))
+    assert np.all(np.array(m["mare_lit"]) <= (0.36, 0.245, 0.23)), m["mare_lit"]
+    assert np.all(np.array(m["mare_band"]) <= (0.20, 0.20, 0.245)), m["mare_band"]
+    assert np.all(np.array(m["sum_ratio"]) >= (0.78, 0.86, 0.89)), m["sum_ratio"]

@@ -38,12 +38,16 @@ def test_plan_of_a_lone_convex_sphere():
     ({"type": "directional", "direction": [0.0, -1.0, 0.0], "intensity": 1.0}, True),  # travelling towards the camera
     ({"type": "directional", "direction": [0.0, 1.0, 0.0], "intensity": 1.0}, False),  # from behind the camera
 ])
-def test_plan_says_where_the_exits_missing_azimuth_matters(light, behind):
-    """The exit has no azimuth: the plan notes it, and warns where a light is more than 90 degrees from the camera
-    about the object (the camera then sees the terminator from its dark side, docs/path_tracer.md)."""
+def test_plan_says_where_the_exits_azimuth_matters(light, behind):
+    """The plan notes the exit's azimuth, and warns where a light is more than 90 degrees from the camera about the
+    object (the camera then sees the terminator from its dark side, docs/path_tracer.md). There it keeps the exit's
+    current when the first order is marched (the current is the orders >= 2's), and says what it cannot fix."""
     scene = _scene(lights=[light])
-    item = {i.name: i for i in make_plan(scene, bssrdf="auto").items}["exit azimuth"]
-    assert not item.included and item.reason.startswith("WARNING") == behind
+    plan = make_plan(scene, bssrdf="auto")
+    item = {i.name: i for i in plan.items}["exit azimuth"]
+    assert item.included == plan.exit_current == (behind and plan.first_order)
+    assert item.reason.startswith("WARNING") == behind
+    assert ("current is added" in item.reason) == item.included
     assert ("light[0] is" in item.reason) == behind
     # The angle: camera at (0, -30, 10) and the light about the sphere's centre.
     view = np.array([0.0, -30.0, 10.0])

@@ -1,0 +1,217 @@
+"""The exit's current: light leaves a translucent surface brighter along its flow, away from where it entered.
+
+The white kernels' exit distributions (:func:`jaxsss.render.bssrdf.multiple_exit_distribution`, and its curved form
+:mod:`jaxsss.render.exit_curvature`) depend on the exit cosine only: the radiance of a pencil beam's light at
+distance ``d`` from the entry is taken to be the same in every azimuth. It is not. The light that reaches ``d`` is
+moving away from the entry (Fick's law), so it leaves brighter in the directions that point away from the entry
+along the surface than back towards it. An index-matched isotropic half-space (the walk of
+:func:`jaxsss.render.walk.pencil_beam_walk`, orders >= 2), albedo 0.96 at normal incidence: the radiance is ``1 + A
+cos phi`` (``phi``: the azimuth between the exit direction's tangential part and the direction away from the entry)
+with ``A`` 0.7-1.1 at grazing exits (``mu_o`` 0.1) and 0.3-0.7 near the normal, from half a transport length on.
+
+On a uniformly lit plane the pairs' currents cancel. At a point-lit sphere's terminator they do not: the light flows
+from the lit side into the dark one (``benchmarks/sphere_transport.py``: the walk's azimuth factor at the camera is
+0.72-0.87 seen from the light's side, 1.3-1.9 seen from behind).
+
+The model: each pair adds ``v_k a(r_k / l_u) (t_k . t_o) Y_k(mu_o)`` to the radiance, ``v_k`` its node's exitance,
+``r_k`` and ``t_k`` the distance from the node's (shifted) entry and the unit tangential direction away from it at
+the shaded point, ``t_o`` the unit tangential part of the direction to the eye, ``a`` the normal-incidence
+half-space's amplitude (the oblique nodes' light flows away from their shifted centres; their own rows of the table,
+about the unshifted entry, over-counted the flow 2-4x on a plane under a point light), and ``Y_k = X_2(mu_o | mu_k)
+psi_k(mu_o)`` (:func:`current_exit_distribution`): a rank-1 fit ``A ~ a(d) psi(mu_o)`` of the walks' first azimuthal
+harmonic per incidence node and albedo (:func:`fit_exit_current`). The sums carry the current as three more rows per
+node, ``sum v_k a t_k`` (:attr:`jaxsss.render.bssrdf.WhiteKernel.exit_current`); the exitance is unchanged (``cos
+phi`` integrates to 0 over the azimuth). The near-field disc carries none (its light enters all around the shaded
+point).
+
+Only the current along the view is added (:func:`jaxsss.render.bssrdf.current_radiance`): where the view looks
+against the flow the kernels' exitance is already short by about as much (the sphere's terminator seen from the
+light's side: exitance 0.69-0.83 of the walk's, against an azimuth factor of 0.72-0.87; docs/path_tracer.md, "Two
+errors that cancel at the terminator"), and the whole current would count that loss twice. The scene plan keeps the
+current where a light is behind the object (:func:`jaxsss.render.plan.make_plan`, "exit azimuth"), the views that
+look along the flow; elsewhere it changed the committed images by under 1% and cost 1.4-1.6x.
+
+``python -m jaxsss.render.exit_current --regenerate`` remakes ``data/exit_current.npz``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import functools
+import sys
+import time
+from pathlib import Path
+
+import jax.numpy as jnp
+import numpy as np
+
+__all__ = ["CURRENT_ALBEDO", "CURRENT_D", "CURRENT_D_EDGES", "CURRENT_MU_EDGES", "CURRENT_MUS", "current_amplitude",
+           "current_amplitude_at", "current_exit_distribution", "fit_exit_current", "generate_exit_current_table",
+           "load_exit_current_table", "tangential_unit"]
+
+CURRENT_MUS = (1.0, 0.5, 0.1)
+"""Incidence cosines of the table: the white-oblique kernel's nodes (1 and :data:`jaxsss.render.bssrdf.KERNEL_MUS`)."""
+CURRENT_ALBEDO = (0.3, 0.6, 0.8, 0.9, 0.97, 0.995)
+"""Single-scattering albedos of the table (linear between, held beyond the ends)."""
+CURRENT_D_EDGES = np.array([0.0, 0.25, 0.5, 0.75, 1.0, 1.5, 2.0, 3.0, 4.0, 6.0, 8.0, 12.0, 16.0, 24.0, 50.0])
+"""Distance bins from the entry, transport lengths."""
+CURRENT_D = tuple(float(x) for x in 0.5 * (CURRENT_D_EDGES[1:] + CURRENT_D_EDGES[:-1]))
+"""Distance nodes ``d / l_u`` of ``a``: the bins' centres (linear between, held beyond)."""
+CURRENT_MU_EDGES = np.linspace(0.0, 1.0, 21)
+CURRENT_PHOTONS = 500_000
+"""Photons per (incidence, albedo) walk of the shipped table (49 s for all 18)."""
+CURRENT_TABLE = Path(__file__).resolve().parent / "data" / "exit_current.npz"
+
+
+def _tally(albedo: float, mu_i: float, photons: int, seed: int) -> np.ndarray:
+    """``(4, D, B)``: the orders >= 2's light per photon by distance from the entry (:data:`CURRENT_D_EDGES`) and exit
+    cosine (:data:`CURRENT_MU_EDGES`) in the half-space, and the same weighted by ``e . u`` (``e``: the unit
+    tangential exit direction, ``u``: the unit direction away from the entry), by ``e . t`` (``t = +x``: the light's
+    travel) and by ``u . t``."""
+    from jaxsss.render.walk import pencil_beam_walk
+
+    h = np.zeros((4, len(CURRENT_D_EDGES) - 1, len(CURRENT_MU_EDGES) - 1))
+
+    def add(first, exit_point, direction, weight):
+        radial = exit_point[:, :2] / np.maximum(np.linalg.norm(exit_point[:, :2], axis=1, keepdims=True), 1e-300)
+        along = direction[:, :2] / np.maximum(np.linalg.norm(direction[:, :2], axis=1, keepdims=True), 1e-300)
+        bins = [CURRENT_D_EDGES, CURRENT_MU_EDGES]
+        at = (np.linalg.norm(exit_point, axis=1), np.clip(direction[:, 2], 0.0, 1.0))
+        for i, f in enumerate((1.0, np.sum(radial * along, axis=1), along[:, 0], radial[:, 0])):
+            h[i] += np.histogram2d(*at, bins, weights=weight * f)[0]
+
+    pencil_beam_walk(albedo, mu_i, photons, seed, add, min_order=2)
+    return h / photons
+
+
+def fit_exit_current(tallies: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """``(ab (U, A, D, 2), psi (U, A, B))`` from the walks' ``tallies`` ``(U, A, 4, D, B)``. Per bin, the radiance's
+    first harmonic as a vector ``c = a u + b t`` (``L ~ 1 + c . e``, so ``<e> = c / 2``), ``(a, b)`` by least squares
+    over the bin's photons: ``[[W, W_ut], [W_ut, W]] (a, b) = 2 (W_eu, W_et)``. Then ``(a, b)(d, mu_o) ~ (a(d),
+    b(d)) psi(mu_o)`` (rank 1 over both, each bin weighted by its light); ``psi`` scaled to 1 at its largest, ``a``
+    and ``b`` held beyond the last distance bin with light. ``b = 0`` at normal incidence (by symmetry)."""
+    n_u, n_a, _, n_d, n_b = tallies.shape
+    amp, shape = np.zeros((n_u, n_a, n_d, 2)), np.zeros((n_u, n_a, n_b))
+    for k in range(n_u):
+        for j in range(n_a):
+            light, eu, et, ut = tallies[k, j]
+            det = np.maximum(light * light - ut * ut, 1e-300)
+            a = 2.0 * (light * eu - ut * et) / det
+            b = 2.0 * (light * et - ut * eu) / det
+            if CURRENT_MUS[k] == 1.0:
+                b = np.zeros_like(b)
+            w = np.sqrt(light / light.sum())
+            stacked = np.concatenate([a * w, b * w])  # (2D, B)
+            psi = np.linalg.svd(stacked, full_matrices=False)[2][0]
+            psi = psi * np.sign(psi.sum())
+            psi = psi / np.max(np.abs(psi))
+            # a(d) and b(d) by weighted least squares against psi, bin by bin.
+            norm = np.maximum(np.sum(light * psi * psi, axis=1), 1e-300)
+            ok = np.flatnonzero(light.sum(axis=1) > 1e-4 * light.sum())
+            for i, x in enumerate((a, b)):
+                fit = np.sum(light * x * psi, axis=1) / norm
+                amp[k, j, :, i] = np.interp(np.arange(n_d), ok, fit[ok])
+            shape[k, j] = psi
+    return amp, shape
+
+
+def generate_exit_current_table(photons: int = CURRENT_PHOTONS, seed: int = 53, progress: bool = True) -> dict:
+    """Run the half-space walks (:data:`CURRENT_MUS` x :data:`CURRENT_ALBEDO`) and return the table: ``a``, ``psi``,
+    the tallies and metadata."""
+    from tqdm.auto import tqdm
+
+    t0 = time.perf_counter()
+    tallies = np.zeros((len(CURRENT_MUS), len(CURRENT_ALBEDO), 4, len(CURRENT_D_EDGES) - 1,
+                        len(CURRENT_MU_EDGES) - 1))
+    nodes = [(k, j) for k in range(len(CURRENT_MUS)) for j in range(len(CURRENT_ALBEDO))]
+    for k, j in tqdm(nodes, desc="exit current", disable=not progress):
+        tallies[k, j] = _tally(CURRENT_ALBEDO[j], CURRENT_MUS[k], photons, seed + 100 * k + j)
+    amp, shape = fit_exit_current(tallies)
+    return {"ab": amp, "psi": shape, "tallies": tallies, "mus": np.asarray(CURRENT_MUS),
+            "albedo": np.asarray(CURRENT_ALBEDO), "d": np.asarray(CURRENT_D), "d_edges": CURRENT_D_EDGES,
+            "mu_edges": CURRENT_MU_EDGES, "photons": photons, "seed": seed, "seconds": time.perf_counter() - t0,
+            "source": "jaxsss.render.walk.pencil_beam_walk: index-matched isotropic half-space, orders >= 2"}
+
+
+@functools.lru_cache(maxsize=1)
+def load_exit_current_table() -> dict:
+    """The shipped table (:data:`CURRENT_TABLE`) as NumPy arrays (cached)."""
+    with np.load(CURRENT_TABLE) as f:
+        return {k: f[k] for k in f.files}
+
+
+def _node_rows(name: str, mus, albedo):
+    """``(K, C, ...)``: table ``name`` at the incidence nodes ``mus``, linear in the albedos ``(C,)``."""
+    from jaxsss.render.exit_distance import node_rows
+
+    return node_rows(load_exit_current_table()[name], CURRENT_MUS, CURRENT_ALBEDO, mus, albedo,
+                     "exit_current (the exit's current)")
+
+
+def current_amplitude(albedo) -> jnp.ndarray:
+    """``(D, C)``: the amplitude ``a`` (away from the entry) of the normal-incidence half-space at :data:`CURRENT_D`
+    for albedos ``(C,)`` (linear between the table's, held beyond; differentiable in ``albedo``)."""
+    return _node_rows("ab", (1.0,), albedo)[0, :, :, 0].T
+
+
+def current_amplitude_at(table, d_lu):
+    """``(P, K, C)``: :func:`current_amplitude`'s ``table`` ``(D, C)`` at ``d_lu`` ``(P, K, C)`` transport lengths
+    from the entry (linear between :data:`CURRENT_D`, held beyond)."""
+    from jaxsss.render.passage import piecewise_linear
+
+    # Linear in d between the nodes.
+    return piecewise_linear(d_lu, CURRENT_D, table[:, None])
+
+
+def current_exit_distribution(mu_o, mus, albedo):
+    """``(Q, K, C)``: ``Y_k = X_2(mu_o | mu_k) psi_k(mu_o)`` for exit cosines ``mu_o`` ``(Q,)``, the incidence nodes
+    ``mus`` and albedos ``(C,)`` (:func:`jaxsss.render.bssrdf.multiple_exit_distribution` times the tabulated shape,
+    linear between the exit-cosine bins' centres, held beyond them). Differentiable in ``albedo``."""
+    from jaxsss.render.bssrdf import multiple_exit_distribution
+    from jaxsss.render.passage import piecewise_linear
+
+    psi = jnp.moveaxis(_node_rows("psi", mus, albedo), -1, 0)  # (B, K, C)
+    centres = 0.5 * (CURRENT_MU_EDGES[1:] + CURRENT_MU_EDGES[:-1])
+    # Linear between the bins' centres: (Q, K, C).
+    psi_q = piecewise_linear(jnp.asarray(mu_o)[:, None, None], centres, psi[:, None])
+    return multiple_exit_distribution(mu_o, jnp.asarray(mus), albedo) * psi_q
+
+
+def tangential_unit(v, normal):
+    """``(..., 3)``: the unit tangential part of ``v`` at a surface of unit ``normal`` (both ``(..., 3)``); 0 where
+    ``v`` is along the normal."""
+    t = v - jnp.sum(v * normal, axis=-1, keepdims=True) * normal
+    n2 = jnp.sum(t * t, axis=-1, keepdims=True)
+    return jnp.where(n2 > 1e-24, t / jnp.sqrt(jnp.where(n2 > 1e-24, n2, 1.0)), 0.0)
+
+
+def main(argv=None) -> int:
+    p = argparse.ArgumentParser(prog="python -m jaxsss.render.exit_current",
+                                description="The azimuthal (current) term of the white kernels' exit, orders >= 2 "
+                                            "(jaxsss.render.exit_current).")
+    p.add_argument("--regenerate", action="store_true", help="run the walks and write the table")
+    p.add_argument("--refit", action="store_true", help="refit a and psi from the shipped tallies (no walk)")
+    p.add_argument("--photons", type=int, default=CURRENT_PHOTONS,
+                   help=f"photons per (incidence, albedo) node (default {CURRENT_PHOTONS})")
+    p.add_argument("--out", type=Path, default=CURRENT_TABLE, help=f"the table's path (default {CURRENT_TABLE})")
+    args = p.parse_args(argv)
+    if args.refit:
+        tab = dict(load_exit_current_table())
+        tab["ab"], tab["psi"] = fit_exit_current(tab["tallies"])
+        np.savez_compressed(args.out, **tab)
+        print(f"refitted {args.out}")
+        return 0
+    if not args.regenerate:
+        tab = load_exit_current_table()
+        print(f"{CURRENT_TABLE}: a, b {tab['ab'].shape} (mu_i, albedo, d / l_u, a|b), psi {tab['psi'].shape} "
+              f"(mu_i, albedo, mu_o bin); {int(tab['photons'])} photons per walk, {float(tab['seconds']):.0f} s")
+        return 0
+    tab = generate_exit_current_table(args.photons)
+    args.out.parent.mkdir(parents=True, exist_ok=True)
+    np.savez_compressed(args.out, **{k: np.asarray(v) for k, v in tab.items()})
+    print(f"wrote {args.out} in {tab['seconds']:.0f} s")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

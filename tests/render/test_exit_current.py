@@ -1,0 +1,163 @@
+"""The exit's current (jaxsss.render.exit_current): the table against a fresh walk, shapes, bad input, invariants
+(symmetric pairs cancel, the exitance rows are the curved kernel's, the current is added along the flow only) and
+autodiff."""
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+from jaxsss.medium import Medium
+from jaxsss.render.bssrdf import current_radiance, exit_radiance_nodes, exit_weights, white_kernel, white_tables
+from jaxsss.render.exit_current import (CURRENT_ALBEDO, CURRENT_D, CURRENT_D_EDGES, CURRENT_MUS, _tally,
+                                        current_amplitude, current_amplitude_at, current_exit_distribution,
+                                        fit_exit_current, load_exit_current_table, tangential_unit)
+from tests.gradcheck import assert_grad_matches_fd
+
+_amplitude = jax.jit(current_amplitude)
+_exit = jax.jit(current_exit_distribution, static_argnums=1)
+
+
+def _mean_flow(tallies, lo: float, hi: float) -> float:
+    """The light-weighted mean of ``e . u`` (the exit's tangential direction along the flow away from the entry)
+    between ``lo`` and ``hi`` transport lengths from the entry, from :func:`_tally`'s ``(4, D, B)``."""
+    sel = (CURRENT_D_EDGES[:-1] >= lo) & (CURRENT_D_EDGES[1:] <= hi)
+    return float(tallies[1, sel].sum() / tallies[0, sel].sum())
+
+
+def test_the_table_against_a_fresh_walk():
+    """Reference: a fresh half-space walk (another seed, 20000 photons, albedo 0.9, normal incidence): its light
+    leaves along the flow, mean ``e . u`` 0.2-0.4 at 1-4 transport lengths, and the shipped table's tallies agree
+    within 0.05; the rank-1 fit ``a(d) psi(mu_o)`` gives back the tallies' mean (``<e . u> = a psi / 2``) within 15%."""
+    table = load_exit_current_table()
+    j = CURRENT_ALBEDO.index(0.9)
+    fresh = _tally(0.9, 1.0, 20_000, seed=11)
+    shipped = table["tallies"][CURRENT_MUS.index(1.0), j]
+    flow = _mean_flow(fresh, 1.0, 4.0)
+    assert 0.2 < flow < 0.4
+    assert _mean_flow(shipped, 1.0, 4.0) == pytest.approx(flow, abs=0.05)
+    ab, psi = fit_exit_current(table["tallies"])
+    sel = (CURRENT_D_EDGES[:-1] >= 1.0) & (CURRENT_D_EDGES[1:] <= 4.0)
+    light = shipped[0, sel]
+    model = np.sum(light * ab[0, j, sel, 0][:, None] * psi[0, j][None, :]) / 2.0 / light.sum()
+    assert model == pytest.approx(_mean_flow(shipped, 1.0, 4.0), rel=0.15)
+    np.testing.assert_allclose(ab, table["ab"], atol=1e-12)
+    np.testing.assert_allclose(psi, table["psi"], atol=1e-12)
+    # The amplitude at albedo 0.9: 0.8-1 out to 10 transport lengths (the tallies' light ends there).
+    a = np.asarray(_amplitude(jnp.array([0.9])))[:, 0]
+    assert np.all((a[:11] > 0.7) & (a[:11] < 1.1))
+
+
+def test_shapes_and_bad_input():
+    a = _amplitude(jnp.array([0.2, 0.9, 0.999]))
+    assert a.shape == (len(CURRENT_D), 3) and np.all(np.isfinite(np.asarray(a)))
+    d = jnp.array([0.0, 0.3, 5.0, 1e6])[:, None, None] * jnp.ones((1, 2, 3))
+    assert current_amplitude_at(a, d).shape == (4, 2, 3)
+    # Held beyond the last node.
+    np.testing.assert_allclose(np.asarray(current_amplitude_at(a, d))[-1, 0], np.asarray(a)[-1])
+    y = _exit(jnp.array([0.0, 0.5, 1.0]), (1.0, 0.5, 0.1), jnp.array([0.5, 0.99]))
+    assert y.shape == (3, 3, 2) and np.all(np.isfinite(np.asarray(y)))
+    t = tangential_unit(jnp.array([[1.0, 0.0, 1.0], [0.0, 0.0, 2.0]]), jnp.array([[0.0, 0.0, 1.0]] * 2))
+    np.testing.assert_allclose(np.asarray(t), [[1.0, 0.0, 0.0], [0.0, 0.0, 0.0]], atol=1e-15)
+    mus, sources = white_tables(0.0, 1.0, True)
+    medium = Medium(sigma_a=jnp.array([0.015]), sigma_s_prime=jnp.array([0.15]), eta=1.0)
+    with pytest.raises(ValueError, match=r"exit_current=True\) needs exit_curved=True"):
+        white_kernel(medium, sources, mus, shift=True, first_order=True, exit_current=True)
+    with pytest.raises(ValueError, match="needs view_tangent"):
+        exit_weights(medium, jnp.array([0.5]), mus, "multiple-current", 5 * len(mus), 1)
+
+
+def test_extreme_albedo_and_distance_stay_finite():
+    """Stability: albedos at and beyond the table's ends (held), distances 0 and 1e6 transport lengths, grazing and
+    normal exits."""
+    a = _amplitude(jnp.array([0.0, 1e-9, 1.0 - 1e-12, 1.0]))
+    assert np.all(np.isfinite(np.asarray(a)))
+    np.testing.assert_allclose(np.asarray(a)[:, 0], np.asarray(a)[:, 1])
+    np.testing.assert_allclose(np.asarray(a)[:, 2], np.asarray(a)[:, 3])
+    y = _exit(jnp.array([0.0, 1e-12, 1.0]), (1.0, 0.5, 0.1), jnp.array([0.0, 1.0]))
+    assert np.all(np.isfinite(np.asarray(y)))
+
+
+@pytest.fixture(scope="module")
+def kernels():
+    mus, sources = white_tables(0.0, 1.0, True)
+    medium = Medium(sigma_a=jnp.array([0.015, 0.1]), sigma_s_prime=jnp.array([0.15, 1.0]), eta=1.0)
+    common = dict(shift=True, curvature=True, first_order=True, exit_curved=True)
+    return (mus, medium, white_kernel(medium, sources, mus, **common),
+            white_kernel(medium, sources, mus, exit_current=True, **common))
+
+
+def test_the_current_rows_follow_the_flow_and_cancel_on_symmetric_pairs(kernels):
+    """Invariants: the first 2K rows are the curved kernel's; the current's rows are the exitance times ``a`` times a
+    tangential direction (orthogonal to the shaded point's normal); two entities placed symmetrically about a shaded
+    point on a plane, with the same flux and no shift, give currents that cancel; radiance by exit weights is the
+    rows times the weights."""
+    mus, medium, curved, current = kernels
+    k = len(mus)
+    rng = np.random.default_rng(1)
+    n = 8
+    x = rng.normal(size=(n, 3))
+    x /= np.linalg.norm(x, axis=1, keepdims=True)
+    p = x + rng.normal(size=(n, 3)) * 0.3
+    p /= np.linalg.norm(p, axis=1, keepdims=True)
+    delta = jnp.asarray(20.0 * (x - p))
+    flux = jnp.asarray(rng.uniform(0.1, 1.0, size=(n, 4, k, 2)))
+    normals = (jnp.asarray(x), jnp.asarray(p))
+    a = np.asarray(curved.pair(delta, curved.sources(flux), normals))
+    b = np.asarray(current.pair(delta, current.sources(flux), normals))
+    assert b.shape == (n, 5 * k, 2) and current.value_shape(flux.shape) == (5 * k, 2) and current.rows_per_node == 5
+    np.testing.assert_allclose(b[:, :2 * k], a, rtol=1e-12)
+    vec = b[:, 2 * k:].reshape(n, 3, k, 2)
+    assert np.max(np.abs(np.einsum("nikc,ni->nkc", vec, x))) < 1e-9 * np.max(np.abs(vec))
+    assert np.max(np.abs(vec)) > 0.0
+    # Symmetric pairs on a plane: no shift (zero travel), offsets +d and -d.
+    up = jnp.tile(jnp.array([[0.0, 0.0, 1.0]]), (2, 1))
+    d = jnp.array([[3.0, 1.0, 0.0], [-3.0, -1.0, 0.0]])
+    still = jnp.zeros((2, 4, k, 2)).at[:, 0].set(1.0)
+    pair = np.asarray(current.pair(d, current.sources(still), (up, up)))
+    np.testing.assert_allclose(pair[0, 2 * k:] + pair[1, 2 * k:], 0.0, atol=1e-12 * np.abs(pair).max())
+    assert np.all(pair[0, 2 * k:3 * k] > 0.0)  # along +x, away from the entry at -d
+    weights = jnp.asarray(rng.uniform(-1.0, 1.0, size=(n, 5 * k, 2)))
+    np.testing.assert_allclose(np.asarray(current.pair(delta, current.sources(flux), normals, weights)),
+                               np.sum(b * np.asarray(weights), axis=1), rtol=1e-10)
+    # The near field's disc carries no current.
+    np.testing.assert_array_equal(np.asarray(current.weighted_disc(3.0))[2 * k:], 0.0)
+
+
+def test_the_current_is_added_along_the_flow_only(kernels):
+    """Invariant: ``current_radiance`` adds the current where it is positive and nothing against the flow; the exit
+    model's radiance of the rows is the curved exit's plus that."""
+    mus, medium, _, _ = kernels
+    k = len(mus)
+    np.testing.assert_array_equal(np.asarray(current_radiance(jnp.array([1.0, 2.0]), jnp.array([-0.5, 0.25]))),
+                                  [1.0, 2.25])
+    rng = np.random.default_rng(2)
+    cos_o = jnp.array([0.2, 0.7, 0.9])
+    rows = jnp.asarray(rng.uniform(0.0, 1.0, size=(3, 5 * k, 2)))
+    view = tangential_unit(jnp.asarray(rng.normal(size=(3, 3))), jnp.array([[0.0, 0.0, 1.0]] * 3))
+    out = np.asarray(exit_radiance_nodes(medium, rows, cos_o, mus, "multiple-current", view_tangent=view))
+    curved = np.asarray(exit_radiance_nodes(medium, rows[:, :2 * k], cos_o, mus, "multiple-curved"))
+    w = np.asarray(exit_weights(medium, cos_o, mus, "multiple-current", 5 * k, 2, view_tangent=view))
+    flow = np.sum(np.asarray(rows)[:, 2 * k:] * w[:, 2 * k:], axis=1)
+    np.testing.assert_allclose(out, curved + np.maximum(flow, 0.0), rtol=1e-12)
+    np.testing.assert_allclose(w[:, :2 * k], np.asarray(exit_weights(medium, cos_o, mus, "multiple-curved", 2 * k, 2)),
+                               rtol=1e-12)
+
+
+def test_gradients_match_finite_differences(kernels):
+    """Autodiff: the amplitude in the albedo and the distance, the exit shape in the albedo, and a kernel's current
+    rows in the pairs' offset."""
+    mus, _, _, current = kernels
+    k = len(mus)
+    d = jnp.array([[2.0, 1.0, 0.3], [-4.0, 0.5, 1.0]])
+    normals = (jnp.array([[0.0, 0.0, 1.0]] * 2), jnp.array([[0.0, 0.1, 0.995]] * 2))
+    flux = jnp.ones((2, 4, k, 2)).at[:, 1:4].set(0.1)
+    sources = current.sources(flux)
+
+    def f(p):
+        a = current_amplitude_at(current_amplitude(p[:1]), p[1] * jnp.array([0.3, 2.2, 6.1])[:, None, None])
+        y = current_exit_distribution(jnp.array([0.3, 0.8]), mus, p[2:3])
+        rows = current.pair(p[3] * d, sources, normals)
+        return jnp.sum(a) + jnp.sum(y * jnp.arange(1.0, k + 1.0)[None, :, None]) + jnp.sum(rows[:, 2 * k:] ** 2)
+
+    assert_grad_matches_fd(f, jnp.array([0.93, 1.1, 0.87, 1.3]), jit=True)
