@@ -14,9 +14,10 @@ and a Mitsuba reference at thousands of spp would take days on this machine.
 References: ``benchmarks/references/materials/<name>.toml`` (the scene), ``.npz`` (``image`` (H, W, 3) linear
 radiance, ``coverage`` (H, W)) and ``.json`` (spp, seeds, seconds, the reference's own noise), made by
 ``--references [NAME ...]`` (Mitsuba ``volpathmis`` at :data:`REFERENCE_SPP`, two halves with seeds 0 and 1; slow:
-whole milk takes about 30 min). They judge the renderer here; no test compares an image with them (one checks that
-they are complete), and they were not used to set any constant of the renderer (they were rendered after its
-constants, to check them).
+whole milk takes about 30 min). They judge the renderer here; one test checks that they are complete, and one
+holds the back-lit skin1 sphere's achieved error (tests/export/test_compare_bssrdf.py: the exit's current is kept
+for that view). They were not used to set any constant of the renderer (they were rendered after its constants, to
+check them; the exit current's clamp was chosen with the back-lit one in view, docs/path_tracer.md).
 
 Rows (one per scene and renderer setting): jaxsss ``render(scene)`` with the plan's own method, kernel and eps
 (the default a user gets), timed after one warm-up render (compilation apart, ``compile_seconds``); Mitsuba at
