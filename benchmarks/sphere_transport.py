@@ -16,7 +16,9 @@ after two or more interactions is tallied
   from the light's flow, the direction along the surface away from the light) per band and exit cosine. The
   renderer's exit has no azimuth (its exit distributions depend on the exit cosine only). ``camera_factor`` is what
   the walk's ``A1`` makes of the camera's view at the renderer's shaded points, exitance-weighted per band: below 1
-  where the camera looks against the flow (from the light's side, at the terminator).
+  where the camera looks against the flow (from the light's side, at the terminator). ``current_factor`` is the
+  renderer's own: ``1 + current / radiance`` of its orders >= 2 summed per band, with the plan made to keep the
+  exit's current (:mod:`jaxsss.render.exit_current`; both signs, before the renderer keeps the positive part).
 
 Rows: one per scene, channel and light band; ``error`` is ``|renderer / walk - 1|`` of the band's exitance; seconds:
 the walk's (NumPy; a diagnostic against transport, not a speed comparison: the renderer's exitance rows are summed
@@ -171,7 +173,23 @@ def renderer_exitance(scene) -> dict:
                              state.light_irradiance * mask.reshape((-1,) + (1,) * (state.light_irradiance.ndim - 1)))
         parts.append(np.asarray(masked.exitance(medium))[:, :k].sum(axis=1))
     return {"whole": whole, "parts": np.stack(parts), "pos": np.asarray(state.query_pos),
-            "cos_o": np.asarray(state.cos_o), "to_eye": np.asarray(state.to_eye)}
+            "cos_o": np.asarray(state.cos_o), "to_eye": np.asarray(state.to_eye), **current_radiance_parts(scene)}
+
+
+def current_radiance_parts(scene) -> dict:
+    """The renderer's exit current at its shaded points, with the plan made to keep it whatever the light
+    (:mod:`jaxsss.render.exit_current`): the orders >= 2's radiance without it, ``(Q, C)`` W/(mm^2 sr), and the
+    current's part (both signs, before :func:`jaxsss.render.bssrdf.current_radiance` keeps the positive one)."""
+    from jaxsss.render import make_plan
+    from jaxsss.render.renderer import prepare
+
+    plan = make_plan(scene, bssrdf="auto")._replace(exit_current=True)
+    state, medium = prepare(scene, plan=plan)[0], scene.material.medium
+    k = len(state.bssrdf_mus)
+    rows = np.asarray(state.exitance(medium))  # (Q, 5K, C)
+    w = np.asarray(state.exit_weights(medium))
+    return {"radiance": np.sum(rows[:, :2 * k] * w[:, :2 * k], axis=1),
+            "current": np.sum(rows[:, 2 * k:] * w[:, 2 * k:], axis=1)}
 
 
 def camera_factor(walk: dict, radius: float, light, pos, cos_o, to_eye, weights) -> np.ndarray:
@@ -226,13 +244,15 @@ def main(argv=None) -> int:
                     exitance_ratio=ratio, walk_exitance=float(truth.sum() / sel.sum()),
                     entry_edges=ENTRY_EDGES.tolist(), walk_share_by_entry=(truth / truth.sum()).tolist(),
                     ratio_by_entry=[float(p / t) if t > 0 else None for p, t in zip(parts, truth)],
-                    camera_factor=None if np.isnan(factor[b]) else float(factor[b]), shaded_points=int(sel.sum()),
-                    photons=photons))
+                    camera_factor=None if np.isnan(factor[b]) else float(factor[b]),
+                    current_factor=float(1.0 + ren["current"][sel, c].sum() / ren["radiance"][sel, c].sum()),
+                    shaded_points=int(sel.sum()), photons=photons))
                 r = rows[-1]
                 print(f"{label:20s} {'RGB'[c]} {r['setting']:30s} renderer/walk {ratio:.3f}  by entry cos "
                       + " ".join("  -  " if v is None else f"{v:.2f}" for v in r["ratio_by_entry"])
                       + f"  (walk shares {' '.join(f'{s:.2f}' for s in r['walk_share_by_entry'])})"
-                      + f"  camera factor {r['camera_factor']}", flush=True)
+                      + f"  camera factor {r['camera_factor']}, the renderer's current {r['current_factor']:.3f}",
+                      flush=True)
     write_results(NAME, rows, args.out, quick=args.quick, connect=False,
                   notes=[f"point light, eta 1, g 0; orders >= 2; {photons} photons per channel; entry bins "
                          f"{ENTRY_EDGES.tolist()}; renderer: render(scene) defaults"],
@@ -242,8 +262,8 @@ def main(argv=None) -> int:
 
 
 def _plot(rows, out, tag: str = "") -> None:
-    """Per scene: the renderer's exitance over the walk's (solid) and the walk's camera factor (dashed) against the
-    band's cosine to the light, one colour per channel."""
+    """Per scene: the renderer's exitance over the walk's (solid), the walk's camera factor (dashed) and the renderer's
+    exit current's (dotted) against the band's cosine to the light, one colour per channel."""
     import matplotlib
 
     matplotlib.use("Agg")
@@ -258,6 +278,8 @@ def _plot(rows, out, tag: str = "") -> None:
             ax.plot(x, [r["exitance_ratio"] for r in sel], "o-", color=colour, label=f"{c}: exitance, renderer / walk")
             ax.plot(x, [r["camera_factor"] for r in sel], "s--", color=colour, alpha=0.6,
                     label=f"{c}: walk's azimuth factor seen by the camera")
+            ax.plot(x, [r["current_factor"] for r in sel], "^:", color=colour, alpha=0.6,
+                    label=f"{c}: the renderer's exit current, the same")
         ax.axhline(1.0, color="k", lw=0.8)
         ax.set(title=label, xlabel="cosine to the light (band centre)")
         ax.grid(True, alpha=0.3)
