@@ -84,7 +84,8 @@ phi(mu_o)`` (:mod:`jaxsss.render.exit_curvature`).
 The exit's current (exit model ``"multiple-current"``, kept by the scene plan where a light is behind the object):
 light leaves brighter along its flow over the surface, away from where it entered. The sums carry each node's
 current too, three rows of ``a(d / l_u)`` times the pair's tangential direction, which leave by ``t_o Y(mu_o)``
-where the view looks along the flow (:mod:`jaxsss.render.exit_current`).
+where the view looks along the flow (:mod:`jaxsss.render.exit_current`). With it the curvature ratio's far field is
+corrected by transport (:mod:`jaxsss.render.curvature_correction`).
 
 Which kernel a scene gets is the scene plan's decision (:func:`choose_bssrdf`): ``white-oblique`` for every ``g <
 FORWARD_G`` and ``eta`` in the family's range, the dipole with its reason otherwise (``g >= FORWARD_G``, ``eta`` or
@@ -105,7 +106,8 @@ import numpy as np
 
 from jaxsss.fresnel import snell_cosine
 from jaxsss.medium import Medium
-from jaxsss.render.curvature import N_KAPPA, curvature_coordinate, log_ratio_table, pair_curvature
+from jaxsss.render.curvature import (KAPPA_MAX_ZR, N_KAPPA, curvature_coordinate, kappa_cap, log_ratio_table,
+                                     pair_curvature)
 from jaxsss.render.exit_direction import anisotropic_exit_distribution
 
 __all__ = ["BSSRDFS", "GRID_PER_DECADE", "OBLIQUE_MUS", "WhiteKernel", "albedo_correction", "chandrasekhar_h",
@@ -604,7 +606,8 @@ class WhiteKernel(eqx.Module):
     sigma_s: jax.Array
     shift_length: jax.Array | None = None
     # The curvature table (None: flat): (K (G - 1) (N_KAPPA - 1) C, 4) bilinear coefficients of log(R C) per cell,
-    # sigma_t' (C,) and each node's source depth (K, C) (:func:`white_kernel`).
+    # sigma_t' (C,), each node's source depth (K, C) and the cap on the curvature in units of sigma_t' (a scalar)
+    # (:func:`white_kernel`).
     curvature: tuple | None = None
     # The cut-beam passage (None: off): the loss table's cells (K, T - 1, X - 1, C, 8) (jaxsss.render.passage.
     # passage_cells), sigma_t' (C,) and the floor of the chord (mm); the flux then carries two more rows, the flux of
@@ -647,8 +650,8 @@ class WhiteKernel(eqx.Module):
             # Linear interpolation of log R in log(r sigma_s).
             log_r = y[..., 0] + t * y[..., 1]
         else:
-            coefficients, sigma_t_prime, _ = self.curvature
-            u = curvature_coordinate(kappa, r, sigma_t_prime)
+            coefficients, sigma_t_prime, _, kappa_max = self.curvature
+            u = curvature_coordinate(kappa, r, sigma_t_prime, kappa_max)
             j = jnp.clip(jnp.floor(u), 0.0, N_KAPPA - 2.0)
             w = u - j
             # One gather of the cell's four bilinear coefficients of log(R C) from the (K, G - 1, N - 1, C) cells.
@@ -946,7 +949,7 @@ def _log(x):
 def white_kernel(medium: Medium, sources: WhiteSources, mus: tuple = (1.0,) + KERNEL_MUS,
                  shift: bool = False, curvature: bool = False, passage: float | None = None,
                  exit_split: bool = False, first_order: bool = False, exit_curved: bool = False,
-                 exit_current: bool = False) -> WhiteKernel:
+                 exit_current: bool = False, curvature_transport: bool = False) -> WhiteKernel:
     """Tabulate the profiles at incidence cosines ``mus`` (1, then the oblique nodes of ``sources``, from
     :func:`white_tables`) for ``medium`` on the grid (differentiable in ``sigma_a`` and ``sigma_s'``): normal incidence
     from the white Monte Carlo family, oblique nodes from ``sources`` (module docstring). ``shift``: shift the
@@ -962,7 +965,9 @@ def white_kernel(medium: Medium, sources: WhiteSources, mus: tuple = (1.0,) + KE
     (with ``first_order``): the sums carry each node's exitance and its part weighted by the curved-exit amplitude
     ``c(kappa, d)`` of the pair (:mod:`jaxsss.render.exit_curvature`). ``exit_current`` (with ``exit_curved``): the
     sums carry each node's current too, three rows of ``a(d)`` times the pair's tangential direction from the node's
-    entry (:mod:`jaxsss.render.exit_current`)."""
+    entry (:mod:`jaxsss.render.exit_current`). ``curvature_transport`` (with ``curvature`` and ``first_order``): the
+    curvature ratio times its transport correction ``Q``, capped at the correction table's smallest sphere
+    (:mod:`jaxsss.render.curvature_correction`)."""
     from jaxsss.mc.white_family import load_white_family
     from jaxsss.render.passage import passage_cells, passage_loss_table
 
@@ -1013,9 +1018,13 @@ def white_kernel(medium: Medium, sources: WhiteSources, mus: tuple = (1.0,) + KE
                              (jnp.broadcast_to(medium.sigma_a + medium.sigma_s_prime, c),
                               current_amplitude(jnp.broadcast_to(medium.alpha_prime, c))),
                              is_leaf=lambda x: x is None)
+    if curvature_transport and not (curvature and first_order):
+        raise ValueError("white_kernel(curvature_transport=True) needs curvature=True and first_order=True (the "
+                         "correction is the orders >= 2's)")
     if not curvature:
         return kernel
-    return eqx.tree_at(lambda k: k.curvature, kernel, _curvature_table(kernel, medium, jnp.asarray(mus)),
+    return eqx.tree_at(lambda k: k.curvature, kernel,
+                       _curvature_table(kernel, medium, tuple(mus), curvature_transport),
                        is_leaf=lambda x: x is None)
 
 
@@ -1057,21 +1066,32 @@ def multiple_orders(kernel: WhiteKernel, medium: Medium, mus: tuple) -> WhiteKer
 
 
 @eqx.filter_jit
-def _curvature_table(kernel: WhiteKernel, medium: Medium, mus) -> tuple:
-    """:attr:`WhiteKernel.curvature` for ``kernel``'s profiles of ``medium`` at incidence cosines ``mus``."""
+def _curvature_table(kernel: WhiteKernel, medium: Medium, mus: tuple, transport: bool = False) -> tuple:
+    """:attr:`WhiteKernel.curvature` for ``kernel``'s profiles of ``medium`` at incidence cosines ``mus``.
+    ``transport`` (the marched kernels' orders >= 2): the diffusion ratio times its transport correction ``Q``, capped
+    at the correction table's smallest sphere (:mod:`jaxsss.render.curvature_correction`)."""
+    from jaxsss.render.curvature_correction import KAPPA_MAX_MARCHED, log_correction_table
+
     c = kernel.sigma_s.shape
     sigma_a, sigma_s_prime, A = (jnp.broadcast_to(jnp.asarray(v, kernel.sigma_s.dtype), c)
                                  for v in (medium.sigma_a, medium.sigma_s_prime, medium.A))
+    sigma_t_prime = sigma_a + sigma_s_prime
     # Each node's source at its refracted cosine mu_t (in units of l_u): (K, C).
     eta = jnp.broadcast_to(jnp.asarray(medium.eta, kernel.sigma_s.dtype), c)
-    depth = snell_cosine(mus[:, None], eta)[0]
+    depth = snell_cosine(jnp.asarray(mus)[:, None], eta)[0]
     n_grid = kernel.log_R.shape[1]
     r = GRID_RHO_MIN * 10.0 ** (jnp.arange(n_grid) / GRID_PER_DECADE)[:, None] / kernel.sigma_s  # (G, C) mm
+    kappa_max = KAPPA_MAX_MARCHED if transport else KAPPA_MAX_ZR
     # log(R C) on the grid x the curvature nodes, (K, G, N, C); its bilinear coefficients per cell.
-    f = kernel.log_R[:, :, None, :] + log_ratio_table(r, sigma_a, sigma_s_prime, A, depth)
+    f = kernel.log_R[:, :, None, :] + log_ratio_table(r, sigma_a, sigma_s_prime, A, depth, kappa_max)
+    if transport:
+        # C Q: Q, transport's pencil beam on a sphere over the renderer's model of it, at the nodes' curvature in l_u.
+        u = 1.0 - (1.0 - jnp.linspace(0.0, 1.0, N_KAPPA)) ** 2
+        kappa_lu = u[:, None] * kappa_cap(r, sigma_t_prime, kappa_max)[:, None, :] / sigma_t_prime  # (G, N, C)
+        f = f + jnp.maximum(log_correction_table(r * sigma_t_prime, kappa_lu, mus, sigma_s_prime / sigma_t_prime), 0.0)
     f00, f10, f01, f11 = f[:, :-1, :-1], f[:, 1:, :-1], f[:, :-1, 1:], f[:, 1:, 1:]
     coefficients = jnp.stack([f00, f10 - f00, f01 - f00, f11 - f10 - f01 + f00], axis=-1).reshape(-1, 4)
-    return coefficients, sigma_a + sigma_s_prime, depth
+    return coefficients, sigma_t_prime, depth, jnp.asarray(kappa_max, sigma_t_prime.dtype)
 
 
 @eqx.filter_jit

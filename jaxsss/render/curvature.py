@@ -125,17 +125,19 @@ def _plane_exitance(d, z_r, z_b, s):
     return z_r * (1.0 + s * ref) / ref**3 + z_v * (1.0 + s * dv) * jnp.exp(-s * (dv - ref)) / dv**3
 
 
-def curvature_ratio(d, kappa, sigma_a, sigma_s_prime, A, depth=1.0):
+def curvature_ratio(d, kappa, sigma_a, sigma_s_prime, A, depth=1.0, kappa_max=KAPPA_MAX_ZR):
     """``C(d, kappa)``: the sphere-to-plane ratio of the diffusion dipole's exitance (module docstring).
 
     Args:
         d: chord distance between the points, mm, ``>= 0``.
-        kappa: pair curvature, 1/mm (:func:`pair_curvature`); clipped to ``[0, min(2 / d, KAPPA_MAX_ZR / l_u)]``,
+        kappa: pair curvature, 1/mm (:func:`pair_curvature`); clipped to ``[0, min(2 / d, kappa_max / l_u)]``,
             ``l_u = 1 / sigma_t'``.
         sigma_a, sigma_s_prime: 1/mm (``sigma_a >= 0``).
         A: boundary reflection parameter ``(1 + F_dr) / (1 - F_dr)`` (:attr:`jaxsss.Medium.A`).
         depth: the source's depth in units of ``l_u``, ``(0, 1]``: the refracted cosine ``mu_t`` of the light's
             direction (module docstring, "Oblique incidence"); 1 (normal incidence) by default.
+        kappa_max: the cap on the curvature in units of ``sigma_t'`` (:data:`KAPPA_MAX_ZR` by default; the marched
+            kernels' transport-corrected ratio uses :data:`jaxsss.render.curvature_correction.KAPPA_MAX_MARCHED`).
 
     All arguments broadcast. Returns the ratio, 1 at ``kappa = 0``; differentiable (finite at ``sigma_a = 0``).
     """
@@ -147,35 +149,36 @@ def curvature_ratio(d, kappa, sigma_a, sigma_s_prime, A, depth=1.0):
     pos = s2 > 0.0
     s = jnp.where(pos, jnp.sqrt(jnp.where(pos, s2, 1.0)), 0.0)  # sigma_tr, with a finite derivative at 0
     d = jnp.maximum(d, 0.0)
-    kappa = jnp.clip(kappa, 0.0, kappa_cap(d, sigma_t_prime))
+    kappa = jnp.clip(kappa, 0.0, kappa_cap(d, sigma_t_prime, kappa_max))
     # Jensen et al. 2001 Eq. 4 on a sphere (image at Kelvin's point) over the same on a plane; >= 0 (rounding can
     # leave a tiny negative value where the profile itself has underflowed: strong absorption, far pairs).
     ratio = _sphere_exitance(d, kappa, z_r, z_b, s) / _plane_exitance(d, z_r, z_b, s)
     return jnp.where(kappa > 0.0, jnp.maximum(ratio, 0.0), 1.0)
 
 
-def kappa_cap(d, sigma_t_prime):
-    """The largest curvature the ratio admits at chord ``d`` (mm), 1/mm: ``min(KAPPA_MAX_ZR sigma_t', 2 / d)`` (a
+def kappa_cap(d, sigma_t_prime, kappa_max=KAPPA_MAX_ZR):
+    """The largest curvature the ratio admits at chord ``d`` (mm), 1/mm: ``min(kappa_max sigma_t', 2 / d)`` (a
     sphere that holds the source well inside it, and the chord)."""
-    return jnp.minimum(KAPPA_MAX_ZR * sigma_t_prime, 2.0 / jnp.maximum(d, 1e-300))
+    return jnp.minimum(kappa_max * sigma_t_prime, 2.0 / jnp.maximum(d, 1e-300))
 
 
-def curvature_coordinate(kappa, d, sigma_t_prime):
+def curvature_coordinate(kappa, d, sigma_t_prime, kappa_max=KAPPA_MAX_ZR):
     """The continuous node index ``s (N_KAPPA - 1)`` of a pair on :func:`log_ratio_table`'s curvature axis, in ``[0,
     N_KAPPA - 1]``: ``u = kappa / kappa_cap(d)`` clipped to ``[0, 1]``, ``s = 1 - sqrt(1 - u)``. Broadcasts."""
-    v = 1.0 - jnp.clip(kappa / kappa_cap(d, sigma_t_prime), 0.0, 1.0)
+    v = 1.0 - jnp.clip(kappa / kappa_cap(d, sigma_t_prime, kappa_max), 0.0, 1.0)
     # sqrt(1 - u), with a finite derivative at the cap (u = 1), where the clip zeroes it.
     root = jnp.where(v > 0.0, jnp.sqrt(jnp.where(v > 0.0, v, 1.0)), 0.0)
     return (1.0 - root) * (N_KAPPA - 1)
 
 
-def log_ratio_table(r, sigma_a, sigma_s_prime, A, depth):
+def log_ratio_table(r, sigma_a, sigma_s_prime, A, depth, kappa_max=KAPPA_MAX_ZR):
     """``log C`` on a distance grid and the :data:`N_KAPPA` curvature nodes (module docstring, "Tabulated").
 
     Args:
         r: ``(G, C)`` distances, mm (the profiles' grid per channel).
         sigma_a, sigma_s_prime, A: ``(C,)`` (:func:`curvature_ratio`).
         depth: ``(K, C)`` each incidence node's source depth in units of ``l_u``.
+        kappa_max: the cap on the curvature in units of ``sigma_t'`` (:func:`kappa_cap`).
 
     Returns:
         ``(K, G, N_KAPPA, C)``: ``log C(r_g, u_j kappa_cap(r_g); depth_k)``, ``u_j = 1 - (1 - j / (N_KAPPA - 1))^2``
@@ -184,7 +187,8 @@ def log_ratio_table(r, sigma_a, sigma_s_prime, A, depth):
     sigma_t_prime = sigma_a + sigma_s_prime
     s = jnp.linspace(0.0, 1.0, N_KAPPA)
     u = 1.0 - (1.0 - s) ** 2
-    kappa = u[:, None] * kappa_cap(r, sigma_t_prime)[:, None, :]  # (G, N, C)
-    ratio = curvature_ratio(r[None, :, None, :], kappa[None], sigma_a, sigma_s_prime, A, depth[:, None, None, :])
+    kappa = u[:, None] * kappa_cap(r, sigma_t_prime, kappa_max)[:, None, :]  # (G, N, C)
+    ratio = curvature_ratio(r[None, :, None, :], kappa[None], sigma_a, sigma_s_prime, A, depth[:, None, None, :],
+                            kappa_max)
     # Floored where the ratio vanishes (the antipode of a strongly absorbing sphere): log 0 would poison the mix.
     return jnp.log(jnp.maximum(ratio, 1e-300))

@@ -261,7 +261,8 @@ def _exit_azimuth(scene, first_order: bool) -> PlanItem | None:
     of the exit radiance is 0.2-0.6 at a point-lit sphere's terminator). With the lights on the camera's side the
     camera looks against the flow at the terminator, and the kernels' short exitance there stands in for the
     azimuth's loss; with a light behind the object it looks along the flow. There the exit's current is kept
-    (:mod:`jaxsss.render.exit_current`; the orders >= 2 of a marched first order only), along the flow only. The
+    (:mod:`jaxsss.render.exit_current`; the orders >= 2 of a marched first order only), along the flow only, with
+    the curvature ratio's far field corrected by transport (:mod:`jaxsss.render.curvature_correction`). The
     angle is the one between the camera and each light about the centre of the object's bounding box."""
     centre = np.asarray(scene.mesh.bounds, dtype=float).mean(axis=0)
     view = np.asarray(scene.camera.position, dtype=float) - centre
@@ -287,9 +288,9 @@ def _exit_azimuth(scene, first_order: bool) -> PlanItem | None:
         return PlanItem("exit azimuth", True,
                         f"WARNING: {key} is {worst:.0f} degrees from the camera about the object, so the camera sees "
                         "the terminator along the light's flow: the exit's current is added where the view looks "
-                        "along it (jaxsss.render.exit_current; two sums, 1.4-1.6x the time), and the terminator's "
-                        "short exitance is left: skin1 lit from 138 degrees is 10-15% too dark at the terminator and "
-                        "35-50% past it (docs/path_tracer.md)")
+                        "along it (jaxsss.render.exit_current; two sums, 1.4-1.6x the time) and the curvature ratio's "
+                        "far field is corrected by transport (jaxsss.render.curvature_correction); still 16-31% per "
+                        "pixel off on back-lit spheres, 20-45% too dark past the terminator (docs/path_tracer.md)")
     return PlanItem("exit azimuth", False,
                     f"WARNING: {key} is {worst:.0f} degrees from the camera about the object, so the camera sees "
                     "the terminator from its dark side; this kernel's exit has no azimuth (transport leaves brighter "

@@ -160,7 +160,9 @@ class Prepared(ReflectingPoints):
                             exit_split=self.bssrdf_exit == "distance",
                             first_order=self.bssrdf_exit in MARCHED_EXITS,
                             exit_curved=self.bssrdf_exit in ("multiple-curved", "multiple-current"),
-                            exit_current=self.bssrdf_exit == "multiple-current")
+                            exit_current=self.bssrdf_exit == "multiple-current",
+                            curvature_transport=(self.bssrdf_exit == "multiple-current"
+                                                 and self.ent_normal is not None))
 
     @property
     def normals(self):

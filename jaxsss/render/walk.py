@@ -9,9 +9,12 @@ of 1e-3 (survival 0.1, unbiased). NumPy: the tables are made once, offline, and 
 
 from __future__ import annotations
 
+import functools
+
 import numpy as np
 
-__all__ = ["isotropic_directions", "pencil_beam_walk", "roulette", "walk_photons"]
+__all__ = ["isotropic_directions", "pencil_beam_walk", "load_table", "roulette", "sphere_and_plane_tallies", "table_main",
+           "walk_photons"]
 
 
 def isotropic_directions(rng: np.random.Generator, n: int) -> np.ndarray:
@@ -83,3 +86,61 @@ def walk_photons(rng: np.random.Generator, pos: np.ndarray, d: np.ndarray, albed
         d = isotropic_directions(rng, len(w))
         alive = roulette(rng, w)
         pos, d, w, payload = pos[alive], d[alive], w[alive], payload[alive]
+
+
+def table_main(argv, *, prog: str, description: str, path, photons: int, photons_help: str, load, refit, generate,
+               describe) -> int:
+    """The command line of a transport table made by these walks (``python -m jaxsss.render.<table>``): without
+    options it describes the shipped table at ``path``; ``--refit`` refits it from its own tallies (``refit(table) ->
+    updated entries``, no walk); ``--regenerate`` runs the walks (``generate(photons) -> table``, with ``seconds``) and
+    writes it (``--out`` elsewhere). ``load()`` reads the shipped table; ``describe(table)`` is its one-line summary."""
+    import argparse
+    from pathlib import Path
+
+    p = argparse.ArgumentParser(prog=prog, description=description)
+    p.add_argument("--regenerate", action="store_true", help="run the walks and write the table")
+    p.add_argument("--refit", action="store_true", help="refit from the shipped tallies (no walk)")
+    p.add_argument("--photons", type=int, default=photons, help=f"{photons_help} (default {photons})")
+    p.add_argument("--out", type=Path, default=Path(path), help=f"the table's path (default {path})")
+    args = p.parse_args(argv)
+    if args.refit:
+        tab = dict(load())
+        tab.update(refit(tab))
+        np.savez_compressed(args.out, **tab)
+        print(f"refitted {args.out}")
+        return 0
+    if not args.regenerate:
+        print(f"{path}: {describe(load())}")
+        return 0
+    tab = generate(args.photons)
+    args.out.parent.mkdir(parents=True, exist_ok=True)
+    np.savez_compressed(args.out, **{k: np.asarray(v) for k, v in tab.items()})
+    print(f"wrote {args.out} in {tab['seconds']:.0f} s")
+    return 0
+
+
+def sphere_and_plane_tallies(tally, mus, albedos, radii, photons: int, seed: int, desc: str, progress: bool = True):
+    """``(sphere (U, A, R, ...), plane (U, A, ...))``: ``tally(albedo, mu_i, radius, photons, seed)`` for every
+    incidence cosine in ``mus`` and albedo in ``albedos``, on the half-space (``radius=None``) and each sphere of
+    ``radii`` (transport lengths). Seeds: ``seed + 1000 k + 100 j`` for the half-space, then ``+ 1 + r`` per sphere
+    (the shipped tables' scheme). A progress bar over the nodes (``desc``)."""
+    from tqdm.auto import tqdm
+
+    sphere, plane = {}, {}
+    nodes = [(k, j) for k in range(len(mus)) for j in range(len(albedos))]
+    for k, j in tqdm(nodes, desc=desc, disable=not progress):
+        base = seed + 1000 * k + 100 * j
+        plane[k, j] = tally(albedos[j], mus[k], None, photons, base)
+        for r, radius in enumerate(radii):
+            sphere[k, j, r] = tally(albedos[j], mus[k], radius, photons, base + 1 + r)
+    grid = (len(mus), len(albedos))
+    return (np.stack([np.stack([sphere[k, j, r] for r in range(len(radii))]) for k, j in nodes]).reshape(
+                grid + (len(radii),) + plane[0, 0].shape),
+            np.stack([plane[k, j] for k, j in nodes]).reshape(grid + plane[0, 0].shape))
+
+
+@functools.lru_cache(maxsize=None)
+def load_table(path) -> dict:
+    """A shipped ``.npz`` table as NumPy arrays (cached per path)."""
+    with np.load(path) as f:
+        return {k: f[k] for k in f.files}

@@ -254,10 +254,12 @@ def test_forward_scattering_sphere_against_its_path_traced_reference():
 def test_skin1_lit_from_behind_against_its_path_traced_reference():
     """The skin1 sphere with the point light at 138 degrees from the camera about it (the benchmark's reference,
     benchmarks/references/materials; 32768 spp): the camera sees the terminator along the light's flow, which the plan
-    says, and keeps the exit's current there (jaxsss.render.exit_current). The goals are missed. Achieved (2026-11-29):
-    mare_lit 0.327 / 0.222 / 0.209, band 0.183 / 0.183 / 0.221, sums 0.801 / 0.882 / 0.912; the exitance past the
-    terminator is still short (docs/path_tracer.md, "Two errors that cancel at the terminator"). Without the current:
-    0.507 / 0.387 / 0.306, band 0.346 / 0.327 / 0.324, sums 0.660 / 0.781 / 0.856. Bounds: the achieved level + 10%."""
+    says, and keeps the exit's current there (jaxsss.render.exit_current) with the curvature ratio's far field
+    corrected by transport (jaxsss.render.curvature_correction). The goals are missed. Achieved (2026-11-29): mare_lit
+    0.211 / 0.214 / 0.208, band 0.153 / 0.177 / 0.220, sums 0.853 / 0.887 / 0.913; the exitance past the terminator is
+    still short (docs/path_tracer.md, "The exit's current, kept where a light is behind the object"). With the current
+    alone: 0.327 / 0.222 / 0.209, band 0.183 / 0.183 / 0.221, sums 0.801 / 0.882 / 0.912. With neither: 0.507 / 0.387 /
+    0.306, band 0.346 / 0.327 / 0.324, sums 0.660 / 0.781 / 0.856. Bounds: the achieved level + 10%."""
     directory = Path(__file__).parents[2] / "benchmarks" / "references" / "materials"
     scene = load_scene(directory / "skin1_sphere_backlit.toml")
     data = np.load(directory / "skin1_sphere_backlit.npz")
@@ -266,6 +268,6 @@ def test_skin1_lit_from_behind_against_its_path_traced_reference():
     assert azimuth["included"] and azimuth["reason"].startswith("WARNING") and result.report["plan"]["exit_current"]
     m = compare_images(result.image, data["image"].astype(np.float64), pixel_geometry(scene),
                        coverage=data["coverage"].astype(np.float64))
-    assert np.all(np.array(m["mare_lit"]) <= (0.36, 0.245, 0.23)), m["mare_lit"]
-    assert np.all(np.array(m["mare_band"]) <= (0.20, 0.20, 0.245)), m["mare_band"]
-    assert np.all(np.array(m["sum_ratio"]) >= (0.78, 0.86, 0.89)), m["sum_ratio"]
+    assert np.all(np.array(m["mare_lit"]) <= (0.232, 0.235, 0.229)), m["mare_lit"]
+    assert np.all(np.array(m["mare_band"]) <= (0.168, 0.195, 0.242)), m["mare_band"]
+    assert np.all(np.array(m["sum_ratio"]) >= (0.84, 0.87, 0.90)), m["sum_ratio"]

@@ -32,7 +32,7 @@ from jaxsss.render.bssrdf import (
     white_table,
     white_tables,
 )
-from jaxsss.render.curvature import N_KAPPA, curvature_ratio
+from jaxsss.render.curvature import KAPPA_MAX_ZR, N_KAPPA, curvature_ratio
 from jaxsss.render.radiance import near_weight
 from tests.gradcheck import assert_grad_matches_fd
 
@@ -203,7 +203,8 @@ def skin_kernel():
 def test_each_nodes_curvature_source_sits_at_its_refracted_cosine(skin_kernel):
     # The curvature table carries sigma_t' and the depth mu_t of each node in units of l_u: mu itself at eta = 1 ...
     kernel = white_kernel(_skin(), _all_tables(), MUS, shift=True, curvature=True)
-    coefficients, st, depth = (np.asarray(x) for x in kernel.curvature)
+    coefficients, st, depth, kappa_max = (np.asarray(x) for x in kernel.curvature)
+    assert float(kappa_max) == KAPPA_MAX_ZR  # unmarched: diffusion's cap
     assert coefficients.shape == (5 * 260 * (N_KAPPA - 1) * 3, 4)
     np.testing.assert_allclose(st, _skin().sigma_a + _skin().sigma_s_prime, rtol=1e-15)
     np.testing.assert_allclose(depth, np.broadcast_to(np.asarray(MUS)[:, None], (5, 3)), rtol=1e-14)

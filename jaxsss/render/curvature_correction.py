@@ -1,0 +1,184 @@
+"""The curvature ratio, corrected by transport: a pencil beam's gain on a sphere over the half-space, orders >= 2.
+
+The curvature ratio (:mod:`jaxsss.render.curvature`) is diffusion's: the dipole's exitance on a sphere with Kelvin's
+image over the plane's. Measured against a walk (:func:`jaxsss.render.walk.pencil_beam_walk` in spheres and the
+half-space, isotropic, index-matched, the orders >= 2 that the white kernels hold when the first order is marched,
+:mod:`jaxsss.render.first_order`), it has the right size at normal incidence on spheres of 15 transport lengths and
+more, and the wrong one on smaller spheres and at grazing incidence: on skin1's red (albedo 0.96) the whole beam's
+gain on a sphere of 15 ``l_u`` is 1.119 in transport against the renderer's 1.103 at normal incidence, and 0.930
+against 1.013 at ``mu_i = 0.1`` (``benchmarks/curvature_transport.py``); on spheres of 6-12 ``l_u`` the images were
+4-6% too bright in red (docs/path_tracer.md, "Small spheres"). Diffusion's ratio was also capped at a radius of
+``6.7 l_u`` (:data:`jaxsss.render.curvature.KAPPA_MAX_ZR`), a knob chosen on images.
+
+The transport correction is
+
+    Q(kappa l_u, d / l_u | mu_i, albedo) = C_MC(d) / (C_Kelvin(d, kappa; depth mu_i) K(d)),
+
+``C_MC`` the walk's exitance at chord ``d`` from the entry on a sphere of radius ``1 / kappa`` over the half-space's
+(orders >= 2, by chord bin), ``C_Kelvin`` the diffusion ratio at the bin's centre with the source at the node's depth
+and no cap but the chord's (``kappa <= 2 / d``), and ``K`` the share of the light that the renderer's cut beam keeps
+(:func:`jaxsss.render.passage.passage_loss`, the chord ``2 a mu_i`` of the refracted ray, azimuthal mean): ``Q`` is
+what the renderer's own model of the pencil beam misses. It is 1 on the plane and tabulated on
+:data:`CORRECTION_RADII` (3.3-25 ``l_u``), linear in the curvature between them and to the plane, per incidence node
+and albedo. Near the entry it is 0.7-1 (least at grazing incidence on small spheres), far from it 1.5-9: light runs
+round a sphere of a few transport lengths, which Kelvin's image, shrinking with the chord, does not carry.
+
+Where it is used: with a light behind the object (the scene plan's ``exit azimuth`` line, with the exit's current of
+:mod:`jaxsss.render.exit_current`), the marched kernels multiply the ratio by ``max(Q, 1)``, the far part, and the cap
+moves to the table's smallest sphere (:data:`KAPPA_MAX_MARCHED`). Its near part (``Q < 1``) is left out: without an
+azimuth about the entry (the shifted profile has too little light ahead of it) it takes light from the terminator,
+which is already short; with it the back-lit skin1 sphere was 0.227 / 0.239 / 0.219 per pixel against 0.211 / 0.214 /
+0.208 (docs/path_tracer.md). From the light's side neither part is used: the terminator's short exitance there stands
+in for the exit's missing azimuth, and ``Q`` would undo it (chicken1 0.034 -> 0.090 in red). The unmarched kernels (a
+dielectric boundary, ``g > 0``, skies) keep the capped diffusion ratio.
+
+``python -m jaxsss.render.curvature_correction --regenerate`` remakes ``data/curvature_correction.npz``.
+"""
+
+from __future__ import annotations
+
+import sys
+import time
+from pathlib import Path
+
+import jax.numpy as jnp
+import numpy as np
+
+__all__ = ["CORRECTION_ALBEDO", "CORRECTION_D", "CORRECTION_D_EDGES", "CORRECTION_KAPPA", "CORRECTION_MUS",
+           "CORRECTION_RADII", "KAPPA_MAX_MARCHED", "fit_curvature_correction", "generate_curvature_correction",
+           "load_curvature_correction", "log_correction_table"]
+
+CORRECTION_MUS = (1.0, 0.5, 0.1)
+"""Incidence cosines of the table: the white-oblique kernel's nodes (1 and :data:`jaxsss.render.bssrdf.KERNEL_MUS`)."""
+CORRECTION_ALBEDO = (0.3, 0.6, 0.8, 0.9, 0.97, 0.995)
+"""Single-scattering albedos of the table (linear between, held beyond the ends)."""
+CORRECTION_RADII = (25.0, 16.0, 11.0, 7.5, 5.0, 3.3)
+"""Sphere radii of the walks, transport lengths (``g = 0``: mean free paths)."""
+CORRECTION_KAPPA = (0.0,) + tuple(1.0 / a for a in CORRECTION_RADII)
+"""Curvature nodes ``kappa l_u`` (0: the plane, where ``Q = 1``; linear between, held beyond ``1 / 3.3``)."""
+KAPPA_MAX_MARCHED = CORRECTION_KAPPA[-1]
+"""The marched kernels' cap on the curvature, in units of ``sigma_t'``: the table's smallest sphere."""
+CORRECTION_D_EDGES = np.array([0.0, 0.25, 0.5, 0.75, 1.0, 1.5, 2.0, 2.5, 3.0, 4.0, 5.0, 6.0, 7.0, 8.0, 10.0, 12.0,
+                               14.0, 17.0, 20.0, 24.0, 28.0, 33.0, 40.0, 50.0])
+"""Chord bins of the walks' tallies, transport lengths (a sphere's chords end at ``2 a``)."""
+CORRECTION_D = tuple(float(x) for x in 0.5 * (CORRECTION_D_EDGES[1:] + CORRECTION_D_EDGES[:-1]))
+"""Distance nodes ``d / l_u`` of ``Q``: the bins' centres (linear between, held beyond)."""
+CORRECTION_PHOTONS = 1_000_000
+CORRECTION_MIN_COUNT = 400
+"""Photons a sphere's chord bin needs for its ``Q``; beyond the last such bin ``Q`` is held."""
+CORRECTION_TABLE = Path(__file__).resolve().parent / "data" / "curvature_correction.npz"
+
+
+def _tally(albedo: float, mu_i: float, radius: float | None, photons: int, seed: int) -> np.ndarray:
+    """``(2, D)``: the orders >= 2's light per photon by chord from the entry (:data:`CORRECTION_D_EDGES`, mean free
+    paths), and the photons in each bin, in a sphere of ``radius`` or (None) the half-space."""
+    from jaxsss.render.walk import pencil_beam_walk
+
+    out = np.zeros((2, len(CORRECTION_D_EDGES) - 1))
+
+    def add(first, exit_point, direction, weight):
+        chord = np.linalg.norm(exit_point, axis=1)
+        out[0] += np.histogram(chord, CORRECTION_D_EDGES, weights=weight)[0]
+        out[1] += np.histogram(chord, CORRECTION_D_EDGES)[0]
+
+    pencil_beam_walk(albedo, mu_i, photons, seed, add, radius=radius, min_order=2)
+    out[0] /= photons
+    return out
+
+
+def renderer_model(mu_i: float, albedo: float, radius: float) -> np.ndarray:
+    """``(D,)``: the renderer's model of the pencil beam's gain at the chord nodes :data:`CORRECTION_D` on a sphere of
+    ``radius`` transport lengths: the diffusion ratio (source at depth ``mu_i``, the chord's cap only) times the
+    share the cut beam keeps (the chord ``2 radius mu_i``, azimuthal mean; index-matched, ``sigma_t' = 1``)."""
+    from jaxsss.render.curvature import curvature_ratio
+    from jaxsss.render.passage import passage_cells, passage_loss, passage_loss_table
+
+    d = np.asarray(CORRECTION_D)
+    ratio = np.asarray(curvature_ratio(d, 1.0 / radius, 1.0 - albedo, albedo, 1.0, mu_i, kappa_max=np.inf))
+    cells = passage_cells(passage_loss_table(jnp.asarray([albedo]), (mu_i,)))
+    chord = 2.0 * radius * mu_i
+    shape = (len(d), 1, 1)
+    loss = passage_loss(cells, jnp.full(shape, chord), jnp.asarray(d / chord).reshape(shape), 0.5)
+    return ratio * (1.0 - np.asarray(loss)[:, 0, 0])
+
+
+def fit_curvature_correction(sphere: np.ndarray, plane: np.ndarray) -> np.ndarray:
+    """``log Q`` ``(U, A, len(CORRECTION_KAPPA), D)`` from the walks' tallies, ``sphere`` ``(U, A, R, 2, D)`` over
+    :data:`CORRECTION_RADII` and ``plane`` ``(U, A, 2, D)`` (light, photons): the walk's gain over the renderer's
+    model (:func:`renderer_model`) per chord bin, 0 on the plane; held beyond the last bin with
+    :data:`CORRECTION_MIN_COUNT` photons in both walks (and inside the sphere's chord, ``d < 2 a``)."""
+    n_u, n_a, n_r, _, n_d = sphere.shape
+    log_q = np.zeros((n_u, n_a, n_r + 1, n_d))
+    for k, mu in enumerate(CORRECTION_MUS):
+        for j, albedo in enumerate(CORRECTION_ALBEDO):
+            p = plane[k, j]
+            for r, radius in enumerate(CORRECTION_RADII):
+                s = sphere[k, j, r]
+                ok = ((s[1] >= CORRECTION_MIN_COUNT) & (p[1] >= CORRECTION_MIN_COUNT)
+                      & (CORRECTION_D_EDGES[1:] <= 2.0 * radius))
+                # Transport's gain over the renderer's model of it, per chord bin.
+                q = np.log(np.maximum(s[0], 1e-300) / np.maximum(p[0], 1e-300)) \
+                    - np.log(np.maximum(renderer_model(mu, albedo, radius), 1e-300))
+                good = np.flatnonzero(ok)
+                # Held beyond the last bin with light (before the first: every walk has light there).
+                log_q[k, j, 1 + r] = np.interp(np.arange(n_d), good, q[good])
+    return log_q
+
+
+def generate_curvature_correction(photons: int = CORRECTION_PHOTONS, seed: int = 47, progress: bool = True) -> dict:
+    """Run the walks (:data:`CORRECTION_MUS` x :data:`CORRECTION_ALBEDO`, each on a half-space and the spheres of
+    :data:`CORRECTION_RADII`) and return the table: ``log_q``, the tallies and metadata."""
+    from jaxsss.render.walk import sphere_and_plane_tallies
+
+    t0 = time.perf_counter()
+    sphere, plane = sphere_and_plane_tallies(_tally, CORRECTION_MUS, CORRECTION_ALBEDO, CORRECTION_RADII, photons,
+                                             seed, "curvature correction", progress)
+    return {"log_q": fit_curvature_correction(sphere, plane), "sphere": sphere, "plane": plane,
+            "mus": np.asarray(CORRECTION_MUS), "albedo": np.asarray(CORRECTION_ALBEDO),
+            "radii": np.asarray(CORRECTION_RADII), "kappa": np.asarray(CORRECTION_KAPPA),
+            "d": np.asarray(CORRECTION_D), "d_edges": CORRECTION_D_EDGES, "photons": photons, "seed": seed,
+            "seconds": time.perf_counter() - t0,
+            "source": "jaxsss.render.walk.pencil_beam_walk: index-matched isotropic sphere and half-space, orders >= 2"}
+
+
+def load_curvature_correction() -> dict:
+    """The shipped table (:data:`CORRECTION_TABLE`) as NumPy arrays (cached)."""
+    from jaxsss.render.walk import load_table
+
+    return load_table(CORRECTION_TABLE)
+
+
+def log_correction_table(r_lu, kappa_lu, mus, albedo):
+    """``(K, G, N, C)``: ``log Q`` at the distances ``r_lu`` ``(G, C)`` and curvatures ``kappa_lu`` ``(G, N, C)``
+    (both in units of ``l_u``), for the incidence nodes ``mus`` (each one of :data:`CORRECTION_MUS`) and albedos
+    ``(C,)``: linear in the albedo, bilinear in (``kappa l_u``, ``d / l_u``) on the table's nodes, held beyond them.
+    Differentiable in ``albedo`` and the coordinates."""
+    from jaxsss.render.exit_distance import node_rows
+    from jaxsss.render.passage import piecewise_linear
+
+    rows = node_rows(load_curvature_correction()["log_q"], CORRECTION_MUS, CORRECTION_ALBEDO, mus, albedo,
+                     "curvature_correction (transport-corrected curvature ratio)")  # (K, C, Nk, D)
+    # Linear in d / l_u at every curvature node: (G, K, C, Nk) -> (Nk, G, 1, K, C).
+    by_d = piecewise_linear(r_lu[:, None, :, None], CORRECTION_D, jnp.moveaxis(rows, 3, 0))
+    by_d = jnp.moveaxis(by_d, 3, 0)[:, :, None]
+    # Then in kappa l_u: (G, N, K, C) -> (K, G, N, C).
+    q = piecewise_linear(kappa_lu[:, :, None, :], CORRECTION_KAPPA, by_d)
+    return jnp.moveaxis(q, 2, 0)
+
+
+def main(argv=None) -> int:
+    from jaxsss.render.walk import table_main
+
+    return table_main(
+        argv, prog="python -m jaxsss.render.curvature_correction", path=CORRECTION_TABLE, photons=CORRECTION_PHOTONS,
+        description="The transport correction of the curvature ratio of the white kernels' orders >= 2 "
+                    "(jaxsss.render.curvature_correction).",
+        photons_help="photons per walk (6 spheres and a half-space per node)", load=load_curvature_correction,
+        refit=lambda tab: {"log_q": fit_curvature_correction(tab["sphere"], tab["plane"])},
+        generate=generate_curvature_correction,
+        describe=lambda tab: (f"log Q {tab['log_q'].shape} (mu_i, albedo, kappa l_u, d / l_u); "
+                              f"{int(tab['photons'])} photons per walk, {float(tab['seconds']):.0f} s"))
+
+
+if __name__ == "__main__":
+    sys.exit(main())
