@@ -288,9 +288,10 @@ def _exit_azimuth(scene, first_order: bool) -> PlanItem | None:
         return PlanItem("exit azimuth", True,
                         f"WARNING: {key} is {worst:.0f} degrees from the camera about the object, so the camera sees "
                         "the terminator along the light's flow: the exit's current is added where the view looks "
-                        "along it (jaxsss.render.exit_current; two sums, 1.4-1.6x the time) and the curvature ratio's "
-                        "far field is corrected by transport (jaxsss.render.curvature_correction); still 16-31% per "
-                        "pixel off on back-lit spheres, 20-45% too dark past the terminator (docs/path_tracer.md)")
+                        "along it (jaxsss.render.exit_current; two sums, 2.3-2.7x their time) and the curvature "
+                        "ratio's far field is corrected by transport (jaxsss.render.curvature_correction); still "
+                        "16-31% per pixel off on back-lit spheres, 20-45% too dark past the terminator "
+                        "(docs/path_tracer.md)")
     return PlanItem("exit azimuth", False,
                     f"WARNING: {key} is {worst:.0f} degrees from the camera about the object, so the camera sees "
                     "the terminator from its dark side; this kernel's exit has no azimuth (transport leaves brighter "
