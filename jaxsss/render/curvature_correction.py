@@ -23,7 +23,7 @@ what the renderer's own model of the pencil beam misses. It is 1 on the plane an
 and albedo. Near the entry it is 0.7-1 (least at grazing incidence on small spheres), far from it 1.5-9: light runs
 round a sphere of a few transport lengths, which Kelvin's image, shrinking with the chord, does not carry.
 
-Where it is used: with a light behind the object (the scene plan's ``exit azimuth`` line, with the exit's current of
+Where it is used: with every light behind the object (the scene plan's ``exit azimuth`` line, with the exit's current of
 :mod:`jaxsss.render.exit_current`), the marched kernels multiply the ratio by ``max(Q, 1)``, the far part, and the cap
 moves to the table's smallest sphere (:data:`KAPPA_MAX_MARCHED`). Its near part (``Q < 1``) is left out: without an
 azimuth about the entry (the shifted profile has too little light ahead of it) it takes light from the terminator,

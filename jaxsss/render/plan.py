@@ -260,10 +260,13 @@ def _exit_azimuth(scene, first_order: bool) -> PlanItem | None:
     Transport leaves a surface brighter along the light's flow over it than against it (the first azimuthal harmonic
     of the exit radiance is 0.2-0.6 at a point-lit sphere's terminator). With the lights on the camera's side the
     camera looks against the flow at the terminator, and the kernels' short exitance there stands in for the
-    azimuth's loss; with a light behind the object it looks along the flow. There the exit's current is kept
-    (:mod:`jaxsss.render.exit_current`; the orders >= 2 of a marched first order only), along the flow only, with
-    the curvature ratio's far field corrected by transport (:mod:`jaxsss.render.curvature_correction`). The
-    angle is the one between the camera and each light about the centre of the object's bounding box."""
+    azimuth's loss; with a light behind the object it looks along the flow. Where every light is behind, the exit's
+    current is kept (:mod:`jaxsss.render.exit_current`; the orders >= 2 of a marched first order only), along the flow
+    only, with the curvature ratio's far field corrected by transport (:mod:`jaxsss.render.curvature_correction`).
+    Both act on every pair, so a light on the camera's side (or a sky) would get them too, and the far field undoes
+    its terminator's cancellation (chicken1 lit from the camera's side: 0.034 -> 0.156 per pixel in red): with such a
+    light as well they are left out, and the line warns. The angle is the one between the camera and each light about
+    the centre of the object's bounding box."""
     centre = np.asarray(scene.mesh.bounds, dtype=float).mean(axis=0)
     view = np.asarray(scene.camera.position, dtype=float) - centre
     angles = {}
@@ -273,18 +276,21 @@ def _exit_azimuth(scene, first_order: bool) -> PlanItem | None:
         elif light.direction is not None:
             to_light = -np.asarray(light.direction, dtype=float)
         else:  # an environment lights every side
+            angles[light.key] = None
             continue
         cos = float(to_light @ view / max(np.linalg.norm(to_light) * np.linalg.norm(view), 1e-300))
         angles[light.key] = math.degrees(math.acos(min(max(cos, -1.0), 1.0)))
-    if not angles:
+    placed = {k: a for k, a in angles.items() if a is not None}
+    if not placed:
         return None
-    key, worst = max(angles.items(), key=lambda kv: kv[1])
+    key, worst = max(placed.items(), key=lambda kv: kv[1])
+    front = [k for k, a in angles.items() if a is None or a <= EXIT_AZIMUTH_BEHIND_DEG]
     if worst <= EXIT_AZIMUTH_BEHIND_DEG:
         return PlanItem("exit azimuth", False,
                         f"not modelled; every light is within {EXIT_AZIMUTH_BEHIND_DEG:g} degrees of the camera about "
                         f"the object (at most {worst:.0f}), where its error cancels the terminator's short exitance "
                         "(docs/path_tracer.md)")
-    if first_order:
+    if first_order and not front:
         return PlanItem("exit azimuth", True,
                         f"WARNING: {key} is {worst:.0f} degrees from the camera about the object, so the camera sees "
                         "the terminator along the light's flow: the exit's current is added where the view looks "
@@ -292,12 +298,14 @@ def _exit_azimuth(scene, first_order: bool) -> PlanItem | None:
                         "ratio's far field is corrected by transport (jaxsss.render.curvature_correction); still "
                         "16-31% per pixel off on back-lit spheres, 20-45% too dark past the terminator "
                         "(docs/path_tracer.md)")
+    why = (f"{', '.join(front)} on the camera's side or all round (the exit's current and the far field's correction "
+           "would undo its terminator's cancellation)" if first_order
+           else "the exit's current needs the first order marched")
     return PlanItem("exit azimuth", False,
                     f"WARNING: {key} is {worst:.0f} degrees from the camera about the object, so the camera sees "
-                    "the terminator from its dark side; this kernel's exit has no azimuth (transport leaves brighter "
-                    "along the light's flow; the exit's current needs the first order marched) and the terminator's "
-                    "exitance is short: these add up there (skin1 lit from 138 degrees: 31-51% too dark per pixel; "
-                    "docs/path_tracer.md)")
+                    "the terminator from its dark side; the exit has no azimuth there (transport leaves brighter "
+                    f"along the light's flow; not modelled: {why}) and the terminator's exitance is short: these add "
+                    "up there (skin1 lit from 138 degrees: 31-51% too dark per pixel; docs/path_tracer.md)")
 
 
 def _first_order(scene, kernel: str, indirect: bool) -> tuple[bool, str]:

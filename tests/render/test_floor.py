@@ -271,3 +271,27 @@ def test_camera_rays_with_samples_per_pixel_are_stratified_and_seeded():
     np.testing.assert_array_equal(rays.directions, camera_rays(_camera(spp=4), seed=2).directions)
     assert not np.array_equal(rays.directions, camera_rays(_camera(spp=4), seed=3).directions)
     assert camera_rays(_camera(), resolution=(6, 3)).shape == (3, 6)
+
+
+def test_plan_keeps_the_exits_current_only_where_every_light_is_behind():
+    """The back-lit skin1 sphere (eta 1, g 0: the first order is marched): lit from behind alone, the plan keeps the
+    exit's current and the far field's correction; with a second light on the camera's side (or a sky) it does not
+    (both act on every pair, and the far field would undo that light's terminator), and it warns; with a second light
+    behind too it keeps them."""
+    import tomllib
+    from pathlib import Path
+
+    from jaxsss.render.scene import parse_scene
+
+    path = Path(__file__).parents[2] / "benchmarks" / "references" / "materials" / "skin1_sphere_backlit.toml"
+    data = tomllib.loads(path.read_text())
+    behind = data["light"][0]
+    cases = [([behind], True),
+             ([behind, {"type": "point", "position": [-90.0, -70.0, 50.0], "intensity": 1e4}], False),
+             ([behind, {"type": "point", "position": [90.0, 100.0, -20.0], "intensity": 1e4}], True)]
+    for lights, kept in cases:
+        plan = make_plan(parse_scene({**data, "light": lights}, path=str(path), base_dir=path.parent), bssrdf="auto")
+        item = {i.name: i for i in plan.items}["exit azimuth"]
+        assert plan.first_order and item.included == plan.exit_current == kept, item
+        assert item.reason.startswith("WARNING")
+        assert ("light[1] on the camera's side" in item.reason) == (not kept)
