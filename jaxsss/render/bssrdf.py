@@ -113,7 +113,7 @@ from jaxsss.render.exit_direction import anisotropic_exit_distribution
 __all__ = ["BSSRDFS", "GRID_PER_DECADE", "OBLIQUE_MUS", "WhiteKernel", "albedo_correction", "chandrasekhar_h",
            "choose_bssrdf", "current_radiance", "directional_albedo", "exit_distribution", "exit_radiance_nodes",
            "exit_weights",
-           "half_space_reflection", "hat_weights", "multiple_exit_distribution", "multiple_orders",
+           "half_space_reflection", "row_parts", "hat_weights", "multiple_exit_distribution", "multiple_orders",
            "refracted_exit_distribution", "shift_ratio_table", "surface_tangents", "incident_flux", "oblique_dir",
            "oblique_pairs",
            "oblique_sources", "shift_reach", "KINKED_LIGHTS", "WHITE_DENSITY", "WHITE_DENSITY_KINKED", "WhiteSources",
@@ -663,10 +663,11 @@ class WhiteKernel(eqx.Module):
 
     def value_shape(self, flux_shape, weighted: bool = False):
         """One pair's value: ``(R K, C)`` node rows (:attr:`rows_per_node` ``R``), or ``(C,)`` radiance when the sums
-        pass exit ``weights`` (:meth:`pair`)."""
+        pass exit ``weights`` (:meth:`pair`; ``(2, C)`` with the exit's current, the exitance's part and the
+        current's, :meth:`rows_radiance`)."""
         k, c = flux_shape[-2:]
         if weighted:
-            return (c,)
+            return (2, c) if self.exit_current is not None else (c,)
         return (self.rows_per_node * k, c)
 
     @property
@@ -739,11 +740,21 @@ class WhiteKernel(eqx.Module):
         if not self.split:
             return jnp.sum(v * weights, axis=1)
         w = weights[:, :k] + self._amplitude(delta, normals) * weights[:, k:2 * k]
-        if self.exit_current is not None:
-            current = self._current(delta, sources, normals)
-            # The current's rows, weighted by the view's tangential direction: a t . t_o Y_k.
-            w = w + sum(current[:, i] * weights[:, (2 + i) * k:(3 + i) * k] for i in range(3))
-        return jnp.sum(v * w, axis=1)
+        if self.exit_current is None:
+            return jnp.sum(v * w, axis=1)
+        current = self._current(delta, sources, normals)
+        # The current's rows, weighted by the view's tangential direction: a t . t_o Y_k; kept apart ((P, 2, C)) for
+        # the sign of their sum per shaded point (current_radiance).
+        wc = sum(current[:, i] * weights[:, (2 + i) * k:(3 + i) * k] for i in range(3))
+        return jnp.stack([jnp.sum(v * w, axis=1), jnp.sum(v * wc, axis=1)], axis=1)
+
+    def rows_radiance(self, rows, weights):
+        """``(Q, C)``: node rows ``(Q, R K, C)`` as radiance by the exit ``weights`` ``(Q, R K, C)``; ``(Q, 2, C)``
+        with the exit's current, its exitance's part and its current's (:func:`row_parts`), as :meth:`pair` gives
+        per pair."""
+        if self.exit_current is None:
+            return jnp.sum(rows * weights, axis=1)
+        return row_parts(rows, weights, rows.shape[1] // self.rows_per_node)
 
     def sources(self, flux):
         """What the sums gather per entity, from its flux: with a shift, ``(E, 4, K, C)`` incident flux ``F_k`` and
@@ -840,7 +851,10 @@ class WhiteKernel(eqx.Module):
         if weights is None:
             return self._split(v * view, delta, normals, sources)
         # The eye's cut after the sum over the nodes (it is the same for all of them).
-        return self._radiance(v, delta, weights, normals, sources) * (view[:, 0] if jnp.ndim(view) else view)
+        cut = view[:, 0] if jnp.ndim(view) else view
+        if jnp.ndim(cut) and self.exit_current is not None:
+            cut = cut[:, None]  # the radiance's two parts (P, 2, C)
+        return self._radiance(v, delta, weights, normals, sources) * cut
 
     def near_terms(self, delta, sources, area, rho0, normals=None, weights=None):
         """A near pair's ``(point, w F, w A)``, each ``(P, K, C)``, with the near-field weight at the distance from
@@ -1170,12 +1184,19 @@ def exit_radiance_nodes(medium: Medium, exitance, cos_o, mus, model: str, azimut
     ``F_t(cos_o) sum_k M_k / (pi F_dt,ext)`` (:func:`jaxsss.render.radiance.exit_radiance`)."""
     w = exit_weights(medium, cos_o, mus, model, exitance.shape[1], exitance.shape[-1], azimuth, view_tangent)
     if model == "multiple-current":
-        k = len(mus)
         # The exitance's rows, then the current's along the flow only (jaxsss.render.exit_current).
-        return current_radiance(jnp.sum(exitance[:, :2 * k] * w[:, :2 * k], axis=1),
-                                jnp.sum(exitance[:, 2 * k:] * w[:, 2 * k:], axis=1))
+        parts = row_parts(exitance, w, len(mus))
+        return current_radiance(parts[:, 0], parts[:, 1])
     # The exit is linear in the nodes' exitance.
     return jnp.sum(exitance * w, axis=1)
+
+
+def row_parts(rows, weights, k: int):
+    """``(Q, 2, C)``: the ``"multiple-current"`` rows ``(Q, 5K, C)`` as radiance by their exit ``weights``, the
+    exitance's ``2K`` rows and the current's ``3K`` apart (:func:`current_radiance` keeps the second's positive
+    part)."""
+    return jnp.stack([jnp.sum(rows[:, :2 * k] * weights[:, :2 * k], axis=1),
+                      jnp.sum(rows[:, 2 * k:] * weights[:, 2 * k:], axis=1)], axis=1)
 
 
 def current_radiance(radiance, current):

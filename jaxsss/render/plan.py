@@ -294,7 +294,7 @@ def _exit_azimuth(scene, first_order: bool) -> PlanItem | None:
         return PlanItem("exit azimuth", True,
                         f"WARNING: {key} is {worst:.0f} degrees from the camera about the object, so the camera sees "
                         "the terminator along the light's flow: the exit's current is added where the view looks "
-                        "along it (jaxsss.render.exit_current; two sums, 2.3-2.7x their time) and the curvature "
+                        "along it (jaxsss.render.exit_current; 1.7-1.9x the sums' time) and the curvature "
                         "ratio's far field is corrected by transport (jaxsss.render.curvature_correction); still "
                         "16-31% per pixel off on back-lit spheres, 20-45% too dark past the terminator "
                         "(docs/path_tracer.md)")

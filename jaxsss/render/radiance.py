@@ -282,12 +282,13 @@ def exitance_near(medium: Medium, query_pos, sample_pos, sample_area, sample_flu
                                               None if weights is None else weights[query])
     area = seg(w_area)
     spread = seg(w_flux) / _per_pair(jnp.where(area > 0, area, 1.0), w_flux)
-    return _weighted(kernel.disc(spread, rho0), weights) + seg(point)
+    return _weighted(kernel, kernel.disc(spread, rho0), weights) + seg(point)
 
 
-def _weighted(exitance, weights):
-    """``(Q, J, C)`` node exitances as radiance ``(Q, C)`` by the exit ``weights`` (None: unchanged)."""
-    return exitance if weights is None else jnp.sum(exitance * weights, axis=1)
+def _weighted(kernel, exitance, weights):
+    """``(Q, J, C)`` node exitances as radiance by the exit ``weights`` (None: unchanged;
+    :meth:`jaxsss.render.bssrdf.WhiteKernel.rows_radiance`)."""
+    return exitance if weights is None else kernel.rows_radiance(exitance, weights)
 
 
 def exitance_pairs(medium: Medium, query_pos, ent_pos, ent_flux, pair_query, pair_entity, *, shared_channel=False,
@@ -477,7 +478,7 @@ def exitance_direct(medium: Medium, query_pos, sample_pos, sample_flux, sample_a
 
         w_area = per_query(w_area)
         spread = per_query(w_flux) / _per_pair(jnp.where(w_area > 0, w_area, 1.0), per_query(w_flux))
-        return per_query(point) + _weighted(kernel.disc(spread, rho0), w)
+        return per_query(point) + _weighted(kernel, kernel.disc(spread, rho0), w)
 
     shape = kernel.value_shape(sample_flux.shape, weights is not None)
     return jax.lax.map(one, (qp, qn, qw)).reshape((-1,) + shape)[:n_q]

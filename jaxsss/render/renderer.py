@@ -210,13 +210,12 @@ class Prepared(ReflectingPoints):
         weights = self.exit_weights(medium)
         if weights is None:
             return rad.exit_radiance(medium, self.exitance(medium), self.cos_o)
+        out = self.exitance(medium, weights=weights)
         if self.bssrdf_exit == "multiple-current":
-            # Two sums, the exitance's rows and the current's, which is kept along the flow only (its sign per shaded
-            # point: jaxsss.render.bssrdf.current_radiance).
-            k = len(self.bssrdf_mus)
-            return current_radiance(self.exitance(medium, weights=weights.at[:, 2 * k:].set(0.0)),
-                                    self.exitance(medium, weights=weights.at[:, :2 * k].set(0.0)))
-        return self.exitance(medium, weights=weights)
+            # The sums keep the exitance's part and the current's apart, (Q, 2, C): the current is kept along the flow
+            # only (its sign per shaded point: jaxsss.render.bssrdf.current_radiance).
+            return current_radiance(out[:, 0], out[:, 1])
+        return out
 
     def exitance_gradient(self, medium: Medium, *, near: bool = True):
         """Analytic gradient of ``M_o`` with respect to the shaded point's position, ``(Q, 3, C)`` W/mm^3 (caching

@@ -8,7 +8,8 @@ import numpy as np
 import pytest
 
 from jaxsss.medium import Medium
-from jaxsss.render.bssrdf import current_radiance, exit_radiance_nodes, exit_weights, white_kernel, white_tables
+from jaxsss.render.bssrdf import (current_radiance, exit_radiance_nodes, exit_weights, row_parts, white_kernel,
+                                  white_tables)
 from jaxsss.render.exit_current import (CURRENT_ALBEDO, CURRENT_D, CURRENT_D_EDGES, CURRENT_MUS, _tally,
                                         current_amplitude, current_amplitude_at, current_exit_distribution,
                                         fit_exit_current, load_exit_current_table, tangential_unit)
@@ -117,9 +118,13 @@ def test_the_current_rows_follow_the_flow_and_cancel_on_symmetric_pairs(kernels)
     pair = np.asarray(current.pair(d, current.sources(still), (up, up)))
     np.testing.assert_allclose(pair[0, 2 * k:] + pair[1, 2 * k:], 0.0, atol=1e-12 * np.abs(pair).max())
     assert np.all(pair[0, 2 * k:3 * k] > 0.0)  # along +x, away from the entry at -d
+    # With exit weights: the exitance's rows and the current's as two radiances per pair (their sign is taken after
+    # the sum), as row_parts gives them from the rows.
     weights = jnp.asarray(rng.uniform(-1.0, 1.0, size=(n, 5 * k, 2)))
-    np.testing.assert_allclose(np.asarray(current.pair(delta, current.sources(flux), normals, weights)),
-                               np.sum(b * np.asarray(weights), axis=1), rtol=1e-10)
+    parts = np.asarray(current.pair(delta, current.sources(flux), normals, weights))
+    assert parts.shape == (n, 2, 2) and current.value_shape(flux.shape, True) == (2, 2)
+    np.testing.assert_allclose(parts, np.asarray(row_parts(jnp.asarray(b), weights, k)), rtol=1e-10)
+    np.testing.assert_allclose(parts.sum(axis=1), np.sum(b * np.asarray(weights), axis=1), rtol=1e-10)
     # The near field's disc carries no current.
     np.testing.assert_array_equal(np.asarray(current.weighted_disc(3.0))[2 * k:], 0.0)
 
