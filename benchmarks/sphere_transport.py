@@ -185,11 +185,9 @@ def current_radiance_parts(scene) -> dict:
 
     plan = make_plan(scene, bssrdf="auto")._replace(exit_current=True)
     state, medium = prepare(scene, plan=plan)[0], scene.material.medium
-    k = len(state.bssrdf_mus)
-    rows = np.asarray(state.exitance(medium))  # (Q, 5K, C)
-    w = np.asarray(state.exit_weights(medium))
-    return {"radiance": np.sum(rows[:, :2 * k] * w[:, :2 * k], axis=1),
-            "current": np.sum(rows[:, 2 * k:] * w[:, 2 * k:], axis=1)}
+    # The sums with exit weights keep the two parts apart: (Q, 2, C).
+    parts = np.asarray(state.exitance(medium, weights=state.exit_weights(medium)))
+    return {"radiance": parts[:, 0], "current": parts[:, 1]}
 
 
 def camera_factor(walk: dict, radius: float, light, pos, cos_o, to_eye, weights) -> np.ndarray:
