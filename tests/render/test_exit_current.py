@@ -14,6 +14,7 @@ from jaxsss.render.exit_current import (CURRENT_ALBEDO, CURRENT_D, CURRENT_D_EDG
                                         current_amplitude, current_amplitude_at, current_exit_distribution,
                                         fit_exit_current, load_exit_current_table, tangential_unit)
 from tests.gradcheck import assert_grad_matches_fd
+from tests.render.test_exit_curvature import sphere_pairs
 
 _amplitude = jax.jit(current_amplitude)
 _exit = jax.jit(current_exit_distribution, static_argnums=1)
@@ -97,11 +98,7 @@ def test_the_current_rows_follow_the_flow_and_cancel_on_symmetric_pairs(kernels)
     k = len(mus)
     rng = np.random.default_rng(1)
     n = 8
-    x = rng.normal(size=(n, 3))
-    x /= np.linalg.norm(x, axis=1, keepdims=True)
-    p = x + rng.normal(size=(n, 3)) * 0.3
-    p /= np.linalg.norm(p, axis=1, keepdims=True)
-    delta = jnp.asarray(20.0 * (x - p))
+    x, p, delta = sphere_pairs(rng, n)
     flux = jnp.asarray(rng.uniform(0.1, 1.0, size=(n, 4, k, 2)))
     normals = (jnp.asarray(x), jnp.asarray(p))
     a = np.asarray(curved.pair(delta, curved.sources(flux), normals))

@@ -33,6 +33,16 @@ def _tally(albedo, mu_i, radius, photons=4000, seed=3, min_order=1):
     return [np.concatenate(x) for x in zip(*out)]
 
 
+def sphere_pairs(rng, n: int, radius: float = 20.0):
+    """``(x, p, delta)``: ``n`` shaded points ``x`` and samples ``p`` on a sphere of ``radius`` mm about the origin
+    (unit normals, ``(n, 3)`` each; a sample near each point) and their offsets ``delta = radius (x - p)``."""
+    x = rng.normal(size=(n, 3))
+    x /= np.linalg.norm(x, axis=1, keepdims=True)
+    p = x + rng.normal(size=(n, 3)) * 0.3
+    p /= np.linalg.norm(p, axis=1, keepdims=True)
+    return x, p, jnp.asarray(radius * (x - p))
+
+
 def test_sphere_walk_conserves_light_and_tends_to_the_half_space():
     """The walk in a sphere: without absorption every photon leaves, uncollided ones included (``min_order=0``: total
     weight = photons, exactly); each exit lies on the sphere; a sphere 1e7 mean free paths across gives the
@@ -123,12 +133,7 @@ def test_curved_kernel_keeps_the_exitance_and_a_plane_keeps_its_exit():
     curved = white_kernel(medium, sources, mus, shift=True, curvature=True, first_order=True, exit_curved=True)
     rng = np.random.default_rng(0)
     n = 9
-    # Points on a sphere of radius 20 mm about the origin, pairs with a sample on the same sphere.
-    x = rng.normal(size=(n, 3))
-    x /= np.linalg.norm(x, axis=1, keepdims=True)
-    p = x + rng.normal(size=(n, 3)) * 0.3
-    p /= np.linalg.norm(p, axis=1, keepdims=True)
-    delta = jnp.asarray(20.0 * (x - p))
+    x, p, delta = sphere_pairs(rng, n)
     flux = jnp.asarray(rng.uniform(0.1, 1.0, size=(n, 4, 3, 2)))
     sources_ = curved.sources(flux)
     convex = (jnp.asarray(x), jnp.asarray(p))
