@@ -81,7 +81,7 @@ orders >= 2). A convex surface's light leaves less grazing than a half-space's: 
 weighted by an amplitude ``c(kappa l_u, d / l_u)`` of the pair's curvature and distance too, which leaves by ``X_2
 phi(mu_o)`` (:mod:`jaxsss.render.exit_curvature`).
 
-The exit's current (exit model ``"multiple-current"``, kept by the scene plan where every light is behind the object):
+The exit's current (exit model ``"multiple-current"``, kept by the scene plan for the lights behind the object):
 light leaves brighter along its flow over the surface, away from where it entered. The sums carry each node's
 current too, three rows of ``a(d / l_u)`` times the pair's tangential direction, which leave by ``t_o Y(mu_o)``
 where the view looks along the flow (:mod:`jaxsss.render.exit_current`). With it the curvature ratio's far field is

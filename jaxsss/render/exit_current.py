@@ -28,10 +28,11 @@ Only the current along the view is added (:func:`jaxsss.render.bssrdf.current_ra
 against the flow the kernels' exitance is already short by about as much (the sphere's terminator seen from the
 light's side: exitance 0.69-0.83 of the walk's, against an azimuth factor of 0.72-0.87; docs/path_tracer.md, "Two
 errors that cancel at the terminator"), and the whole current would count that loss twice. The scene plan keeps the
-current where every light is behind the object (:func:`jaxsss.render.plan.make_plan`, "exit azimuth"), the views that
-look along the flow, together with the curvature ratio's far field corrected by transport
-(:mod:`jaxsss.render.curvature_correction`); elsewhere the clamped current changed the committed images by 0 to 1.2%
-in sum, and the image's sums take 1.7-1.9x as long with it.
+current for the light of every light behind the object (:func:`jaxsss.render.plan.make_plan`, "exit azimuth"), the
+views that look along its flow, together with the curvature ratio's far field corrected by transport
+(:mod:`jaxsss.render.curvature_correction`); the light of lights on the camera's side is summed apart without them
+(:meth:`jaxsss.render.renderer.Prepared.light_sides`). Forced on for lights on the camera's side, the clamped current
+changed the committed images by 0 to 1.2% in sum; the image's sums take 1.7-1.9x as long with it.
 
 ``python -m jaxsss.render.exit_current --regenerate`` remakes ``data/exit_current.npz``.
 """

@@ -76,6 +76,9 @@ class ScenePlan(NamedTuple):
     self_bounce: bool = False
     first_order: bool = False
     exit_current: bool = False
+    current_lights: tuple = ()
+    """Per light of the scene, whether its light is summed with the exit's current (:attr:`exit_current`: any of
+    them). Lights on both sides of the object are summed apart, each side with its own kernel."""
 
     def explain(self) -> str:
         """The plan as text, one line per decision."""
@@ -185,12 +188,11 @@ def make_plan(scene, *, method: str | None = None, eps: float | None = None, cut
     first_order, why = _first_order(scene, kernel, indirect or self_bounce)
     if kernel != "dipole":
         items.append(PlanItem("first order in the object's geometry", first_order, why))
-    exit_current = False
+    current_lights = ()
     if bssrdf is not None:
-        azimuth = _exit_azimuth(scene, first_order)
+        azimuth, current_lights = _exit_azimuth(scene, first_order)
         if azimuth is not None:
             items.append(azimuth)
-            exit_current = azimuth.included
 
     specular = scene.material.specular_roughness is not None
     items.append(PlanItem("specular highlights", specular,
@@ -246,7 +248,7 @@ def make_plan(scene, *, method: str | None = None, eps: float | None = None, cut
         items.append(PlanItem("occluders", True, f"{len(scene.occluders)} opaque Lambertian object(s) shaded "
                                                  "directly"))
     return ScenePlan(method, eps, n_samples, shadows, indirect, single, specular, r_cut, shared, tuple(items),
-                     kernel, self_bounce, first_order, exit_current)
+                     kernel, self_bounce, first_order, any(current_lights), current_lights)
 
 
 EXIT_AZIMUTH_BEHIND_DEG = 90.0
@@ -254,58 +256,62 @@ EXIT_AZIMUTH_BEHIND_DEG = 90.0
 see: the camera then looks at the terminator from the dark side, along the light's flow over the surface."""
 
 
-def _exit_azimuth(scene, first_order: bool) -> PlanItem | None:
-    """The plan's line on the exit's azimuth (None without a light that has a position or a direction).
+def _exit_azimuth(scene, first_order: bool) -> tuple[PlanItem | None, tuple]:
+    """The plan's line on the exit's azimuth (None without a light that has a position or a direction), and per light
+    whether its light is summed with the exit's current (:attr:`ScenePlan.current_lights`).
 
     Transport leaves a surface brighter along the light's flow over it than against it (the first azimuthal harmonic
-    of the exit radiance is 0.2-0.6 at a point-lit sphere's terminator). With the lights on the camera's side the
-    camera looks against the flow at the terminator, and the kernels' short exitance there stands in for the
-    azimuth's loss; with a light behind the object it looks along the flow. Where every light is behind, the exit's
-    current is kept (:mod:`jaxsss.render.exit_current`; the orders >= 2 of a marched first order only), along the flow
-    only, with the curvature ratio's far field corrected by transport (:mod:`jaxsss.render.curvature_correction`).
-    Both act on every pair, so a light on the camera's side (or a sky) would get them too, and the far field undoes
-    its terminator's cancellation (chicken1 lit from the camera's side: 0.034 -> 0.156 per pixel in red): with such a
-    light as well they are left out, and the line warns. The angle is the one between the camera and each light about
-    the centre of the object's bounding box."""
+    of the exit radiance is 0.2-0.6 at a point-lit sphere's terminator). With a light on the camera's side the camera
+    looks against its flow at the terminator, and the kernels' short exitance there stands in for the azimuth's loss;
+    with a light behind the object it looks along the flow. The light of every light behind is summed with the exit's
+    current (:mod:`jaxsss.render.exit_current`; the orders >= 2 of a marched first order only), along the flow only,
+    with the curvature ratio's far field corrected by transport (:mod:`jaxsss.render.curvature_correction`). The light
+    of a light on the camera's side is summed without them: the far field would undo its terminator's cancellation
+    (chicken1 lit from the camera's side: 0.034 -> 0.156 per pixel in red). With lights on both sides the two are
+    summed apart, each with its own kernel. The angle is the one between the camera and each light about the centre
+    of the object's bounding box."""
     centre = np.asarray(scene.mesh.bounds, dtype=float).mean(axis=0)
     view = np.asarray(scene.camera.position, dtype=float) - centre
-    angles = {}
+    angles = []
     for light in scene.lights:
         if light.position is not None:
             to_light = np.asarray(light.position, dtype=float) - centre
         elif light.direction is not None:
             to_light = -np.asarray(light.direction, dtype=float)
         else:  # an environment lights every side
-            angles[light.key] = None
+            angles.append(None)
             continue
         cos = float(to_light @ view / max(np.linalg.norm(to_light) * np.linalg.norm(view), 1e-300))
-        angles[light.key] = math.degrees(math.acos(min(max(cos, -1.0), 1.0)))
-    placed = {k: a for k, a in angles.items() if a is not None}
+        angles.append(math.degrees(math.acos(min(max(cos, -1.0), 1.0))))
+    keys = [light.key or f"light[{i}]" for i, light in enumerate(scene.lights)]
+    behind = [a is not None and a > EXIT_AZIMUTH_BEHIND_DEG for a in angles]
+    placed = [a for a in angles if a is not None]
     if not placed:
-        return None
-    key, worst = max(placed.items(), key=lambda kv: kv[1])
-    front = [k for k, a in angles.items() if a is None or a <= EXIT_AZIMUTH_BEHIND_DEG]
-    if worst <= EXIT_AZIMUTH_BEHIND_DEG:
+        return None, ()
+    worst = max(placed)
+    key = keys[angles.index(worst)]
+    if not any(behind):
         return PlanItem("exit azimuth", False,
                         f"not modelled; every light is within {EXIT_AZIMUTH_BEHIND_DEG:g} degrees of the camera about "
                         f"the object (at most {worst:.0f}), where its error cancels the terminator's short exitance "
-                        "(docs/path_tracer.md)")
-    if first_order and not front:
-        return PlanItem("exit azimuth", True,
-                        f"WARNING: {key} is {worst:.0f} degrees from the camera about the object, so the camera sees "
-                        "the terminator along the light's flow: the exit's current is added where the view looks "
-                        "along it (jaxsss.render.exit_current; 1.7-1.9x the sums' time) and the curvature "
-                        "ratio's far field is corrected by transport (jaxsss.render.curvature_correction); still "
-                        "16-31% per pixel off on back-lit spheres, 20-45% too dark past the terminator "
-                        "(docs/path_tracer.md)")
-    why = (f"{', '.join(front)} on the camera's side or all round (the exit's current and the far field's correction "
-           "would undo its terminator's cancellation)" if first_order
-           else "the exit's current needs the first order marched")
-    return PlanItem("exit azimuth", False,
-                    f"WARNING: {key} is {worst:.0f} degrees from the camera about the object, so the camera sees "
-                    "the terminator from its dark side; the exit has no azimuth there (transport leaves brighter "
-                    f"along the light's flow; not modelled: {why}) and the terminator's exitance is short: these add "
-                    "up there (skin1 lit from 138 degrees: 31-51% too dark per pixel; docs/path_tracer.md)")
+                        "(docs/path_tracer.md)"), ()
+    seen = (f"WARNING: {key} is {worst:.0f} degrees from the camera about the object, so the camera sees the "
+            "terminator")
+    if not first_order:
+        return PlanItem("exit azimuth", False,
+                        f"{seen} from its dark side; the exit has no azimuth there (transport leaves brighter along "
+                        "the light's flow; not modelled: the exit's current needs the first order marched) and the "
+                        "terminator's exitance is short: these add up there (skin1 lit from 138 degrees: 31-51% too "
+                        "dark per pixel; docs/path_tracer.md)"), ()
+    front = [k for k, b in zip(keys, behind) if not b]
+    apart = (f"; the light of {', '.join(front)} (on the camera's side) is summed apart without them (a second sum: "
+             "the image took 2.3-3.0x as long as with one)" if front else "")
+    return PlanItem("exit azimuth", True,
+                    f"{seen} along the light's flow: the exit's current is added where the view looks along it "
+                    "(jaxsss.render.exit_current; 1.7-1.9x the sums' time) and the curvature ratio's far field is "
+                    f"corrected by transport (jaxsss.render.curvature_correction) for the lights behind{apart}; still "
+                    "16-31% per pixel off on back-lit spheres, 20-45% too dark past the terminator "
+                    "(docs/path_tracer.md)"), tuple(behind)
 
 
 def _first_order(scene, kernel: str, indirect: bool) -> tuple[bool, str]:

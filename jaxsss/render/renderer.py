@@ -11,6 +11,7 @@ memory stays bounded. The methods ``hierarchical`` and ``direct`` are registered
 
 from __future__ import annotations
 
+import dataclasses
 import time
 
 import equinox as eqx
@@ -27,6 +28,7 @@ from jaxsss.render.bssrdf import (albedo_correction, current_radiance, exit_mode
 from jaxsss.render.passage import PASSAGE_FLOOR, cut_matters, interaction_probability, truncated_travel, view_chords
 from jaxsss.render.camera import camera_frame
 from jaxsss.render.first_order import first_order_radiance
+from jaxsss.render.lights import light_columns
 from jaxsss.render.methods import Preparation, register_method
 from jaxsss.render.octree import build_octree
 from jaxsss.render.pairs import BLOCK_PAIRS, PairLists, near_radius, pair_info, pair_lists
@@ -88,6 +90,9 @@ class Prepared(ReflectingPoints):
     bssrdf_exit: str = eqx.field(static=True, default="fresnel")
     # (N, C) W/mm^2: the object's own lit surface seen from each sample (jaxsss.render.samples.self_irradiance), or None
     self_indirect: jax.Array | None = None
+    # The light columns summed with the exit's current where lights on both sides of the object are summed apart
+    # (ScenePlan.current_lights; exit model "multiple-current"); None: every column has this Prepared's exit model
+    current_columns: tuple | None = eqx.field(static=True, default=None)
 
     def indirect_irradiance(self, medium: Medium):
         """``(N, C)`` diffuse indirect irradiance at the samples, W/mm^2, or None: the occluders' bounce plus the
@@ -177,6 +182,8 @@ class Prepared(ReflectingPoints):
         """Radiant exitance ``M_o`` at the shaded points, ``(Q, C)`` W/mm^2 (``(Q, J, C)`` per node row of a white
         kernel; ``blocks``: part of the pair list). With exit ``weights`` ``(Q, J, C)`` (:meth:`exit_weights`), the
         diffusion radiance ``(Q, C)`` W/(mm^2 sr) instead (:meth:`diffusion_radiance`)."""
+        if self.current_columns is not None:
+            return self._exitance_apart(medium, blocks, weights)
         flux = self.sample_flux(medium)
         kernel = self.kernel(medium)
         if self.method == "direct":
@@ -191,6 +198,35 @@ class Prepared(ReflectingPoints):
                                  shared_channel=self.shared_channel, kernel=kernel, normals=self.normals,
                                  weights=weights)
         return far + self.exitance_near(medium, flux, kernel, weights)
+
+    def light_sides(self):
+        """``(behind, front)``: this ``Prepared`` with only the light columns behind the object (exit model
+        ``"multiple-current"``) and with only the others (``"multiple-curved"``, with the indirect light), where the
+        plan sums lights on both sides apart (:attr:`current_columns`)."""
+        behind = np.asarray(self.current_columns, dtype=int)
+        front = np.setdiff1d(np.arange(self.light_cos.shape[1]), behind)
+
+        def side(cols, exit_model, indirect):
+            def take(a):
+                return None if a is None else a[:, cols]
+
+            return dataclasses.replace(
+                self, light_cos=take(self.light_cos), light_irradiance=take(self.light_irradiance),
+                light_tangent=take(self.light_tangent), light_chord=take(self.light_chord), bssrdf_exit=exit_model,
+                current_columns=None, indirect=self.indirect if indirect else None,
+                self_indirect=self.self_indirect if indirect else None)
+
+        return side(behind, "multiple-current", False), side(front, "multiple-curved", True)
+
+    def _exitance_apart(self, medium: Medium, blocks, weights):
+        """:meth:`exitance` with lights on both sides of the object: the lights behind summed with the exit's current
+        and the far field's correction, the others without (that kernel's rows are the first ``2K`` of the current's,
+        whose current rows get nothing from them), in two sums (:attr:`current_columns`)."""
+        behind, front = self.light_sides()
+        n = len(self.bssrdf_mus) * EXIT_ROWS["multiple-curved"]
+        out = behind.exitance(medium, blocks, weights)
+        rest = front.exitance(medium, blocks, None if weights is None else weights[:, :n])
+        return out.at[:, :n].add(rest) if weights is None else out.at[:, 0].add(rest)
 
     def exit_weights(self, medium: Medium):
         """``(Q, J, C)``: the radiance towards the eye per unit exitance of each node row of the white kernel at the
@@ -303,6 +339,7 @@ def assemble_prepared(scene, plan: ScenePlan, samples, tree, shading: ShadingPoi
     pairs = pairs or PairLists(None, None, None, None, near_radius(samples), np.zeros(0, int), 0)
     mus, tables, exit_model, tangent, ent_normal, view_chord = (1.0,), None, "fresnel", None, None, None
     passage_cut = False
+    current_columns = None
     if plan.bssrdf != "dipole":
         ent_normal = to_device(entity_normals(samples.normals[order] * samples.areas[order, None], tree))
         medium = scene.material.medium
@@ -313,6 +350,10 @@ def assemble_prepared(scene, plan: ScenePlan, samples, tree, shading: ShadingPoi
         # along the light's flow where the plan keeps the current (jaxsss.render.exit_current).
         exit_model = (("multiple-current" if plan.exit_current else "multiple-curved")
                       if shading.first_order is not None else exit_model_for(medium))
+        if exit_model == "multiple-current" and not all(plan.current_lights):
+            # Lights on both sides of the object: those behind are summed with the current, the others apart.
+            columns = np.repeat(plan.current_lights, [light_columns(light) for light in scene.lights])
+            current_columns = tuple(int(c) for c in np.flatnonzero(columns))
         if plan.bssrdf == "white-oblique":
             tangent = to_device(surface_tangents(samples.light.to_light[order], samples.normals[order],
                                                  float(medium.eta)))
@@ -351,6 +392,7 @@ def assemble_prepared(scene, plan: ScenePlan, samples, tree, shading: ShadingPoi
         bssrdf_mus=tuple(mus),
         bssrdf_exit=exit_model,
         self_indirect=to_device(None if samples.self_indirect is None else samples.self_indirect[order]),
+        current_columns=current_columns,
     )
 
 

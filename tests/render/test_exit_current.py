@@ -2,6 +2,7 @@
 (symmetric pairs cancel, the exitance rows are the curved kernel's, the current is added along the flow only) and
 autodiff."""
 
+import equinox as eqx
 import jax
 import jax.numpy as jnp
 import numpy as np
@@ -163,3 +164,46 @@ def test_gradients_match_finite_differences(kernels):
         return jnp.sum(a) + jnp.sum(y * jnp.arange(1.0, k + 1.0)[None, :, None]) + jnp.sum(rows[:, 2 * k:] ** 2)
 
     assert_grad_matches_fd(f, jnp.array([0.93, 1.1, 0.87, 1.3]), jit=True)
+
+
+def test_lights_on_both_sides_are_summed_apart():
+    """A key light on the camera's side and one behind the sphere (eta 1, g 0: the first order is marched). The plan
+    sums the light behind with the exit's current and the key light apart without it, and says so. The lights are
+    opposite, so no sample sees both (a sample's oblique shift is its lights' flux-weighted mean travel, not linear in
+    the light where two light it): the direct sum's image is then each light's own image added (the key light's alone
+    has no current), to rounding. The mixed image is differentiable through both sums."""
+    from jaxsss.render import make_plan, prepare
+    from tests.render.test_renderer import _scene
+
+    # Not 2.0 in blue: l_u = 1 / 2.2 mm on the 5 mm sphere puts pairs exactly on a node of the curvature correction's
+    # table, where forward mode takes one side's slope of the piecewise-linear table and central differences the mean.
+    material = {"sigma_a": [0.05, 0.1, 0.2], "sigma_s_prime": [1.0, 1.5, 2.1], "eta": 1.0}
+    key = {"type": "point", "position": [-5.0, -40.0, 0.0], "intensity": 300.0}
+    rim = {"type": "point", "position": [5.0, 40.0, 0.0], "intensity": 300.0}
+    # One ray per pixel everywhere: edge pixels (where more rays go) depend on the lights.
+    camera = {"position": [0.0, -30.0, 10.0], "look_at": [0.0, 0.0, 0.0], "fov_deg": 25.0, "resolution": [12, 12],
+              "edge_spp": 1}
+    scenes = [_scene(material=material, lights=lights, camera=camera) for lights in ([key, rim], [key], [rim])]
+    plans = [make_plan(s, method="direct", bssrdf="auto") for s in scenes]
+    assert [p.current_lights for p in plans] == [(False, True), (), (True,)]
+    assert [p.exit_current for p in plans] == [True, False, True]
+    item = {i.name: i for i in plans[0].items}["exit azimuth"]
+    assert item.included and "light[0] (on the camera's side) is summed apart" in item.reason
+    prepared = [prepare(s, method="direct", plan=p)[0] for s, p in zip(scenes, plans)]
+    assert [p.current_columns for p in prepared] == [(1,), None, None]
+    assert [p.bssrdf_exit for p in prepared] == ["multiple-current", "multiple-curved", "multiple-current"]
+    medium = scenes[0].material.medium
+    images = [np.asarray(p.image(medium)) for p in prepared]
+    assert np.all(np.isfinite(images[0])) and images[2].max() > 0.05 * images[1].max()
+    np.testing.assert_allclose(images[0], images[1] + images[2], rtol=1e-9, atol=1e-12 * images[0].max())
+
+    # Forward mode against central differences along one direction of sigma_a (reverse mode through the white kernels:
+    # tests/render/test_renderer.py).
+    def image(sigma_a):
+        return prepared[0].image(eqx.tree_at(lambda m: m.sigma_a, medium, sigma_a))
+
+    x, v, h = medium.sigma_a, jnp.array([1.0, -0.5, 0.3]), 1e-6
+    tangent = np.asarray(jax.jvp(image, (x,), (v,))[1])
+    fd = (np.asarray(image(x + h * v)) - np.asarray(image(x - h * v))) / (2 * h)
+    assert np.abs(tangent).max() > 0
+    np.testing.assert_allclose(tangent, fd, rtol=1e-5, atol=1e-6 * np.abs(fd).max())
