@@ -6,7 +6,8 @@ every material of the Jensen 2001 table with albedo above 0.9, and never slower 
 whose references are tests. This benchmark measures the rest on spheres, with the same functions: apple, chicken2,
 cream, potato, skim milk, whole milk and skin2 (20 mm and 8 mm), skin1 on an 8 mm sphere, and skin1 lit from behind
 (the camera looks at the terminator from the dark side: the renderer's largest known error, docs/path_tracer.md,
-"Two errors that cancel at the terminator"). Every sphere is index-matched (eta 1) under one point light, 64 x 64.
+"Two errors that cancel at the terminator"), and skin1 under a key light in front and that rim light behind (the two
+sides summed apart). Every sphere is index-matched (eta 1) under one point light, 64 x 64.
 
 Spectralon is left out: its transport length is 0.05-0.09 mm, so a path in a 20 mm sphere scatters about 1e5 times,
 and a Mitsuba reference at thousands of spp would take days on this machine.
@@ -60,8 +61,9 @@ REFERENCES = ROOT / "benchmarks" / "references" / "materials"
 NAME = "render_materials"
 REFERENCE_SPP = {"apple_sphere": 4096, "chicken2_sphere": 4096, "cream_sphere": 4096, "potato_sphere": 4096,
                  "skimmilk_sphere": 4096, "wholemilk_sphere": 4096, "skin2_sphere": 4096, "skin2_sphere_8mm": 4096,
-                 "skin1_sphere_8mm": 4096, "skin1_sphere_backlit": 32768}
-"""The scenes and their reference's spp (the back-lit one at 8x: its lit pixels are few and dim)."""
+                 "skin1_sphere_8mm": 4096, "skin1_sphere_backlit": 32768, "skin1_sphere_keyrim": 16384}
+"""The scenes and their reference's spp (the back-lit one at 8x: its lit pixels are few and dim; the key and rim lit one
+at 4x, for its rim)."""
 SCENES = tuple(REFERENCE_SPP)
 CONFIG = {"quick": {"mitsuba_spp": (4, 16, 64)}, "full": {"mitsuba_spp": (16, 64, 256, 1024)}}
 ALBEDO_GOAL = 0.9

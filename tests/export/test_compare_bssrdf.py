@@ -271,3 +271,22 @@ def test_skin1_lit_from_behind_against_its_path_traced_reference():
     assert np.all(np.array(m["mare_lit"]) <= (0.232, 0.235, 0.229)), m["mare_lit"]
     assert np.all(np.array(m["mare_band"]) <= (0.168, 0.195, 0.242)), m["mare_band"]
     assert np.all(np.array(m["sum_ratio"]) >= (0.84, 0.87, 0.90)), m["sum_ratio"]
+
+
+def test_skin1_under_a_key_and_a_rim_light_against_its_path_traced_reference():
+    """The skin1 sphere under a key light on the camera's side and the back-lit scene's light behind it (the benchmark's
+    reference, benchmarks/references/materials; 16384 spp, noise 2.1 / 1.2 / 1.3%): the plan sums the rim light's part
+    with the exit's current and the curvature's far field corrected, and the key light's apart without them. Achieved
+    (2026-11-29): mare_lit 0.038 / 0.029 / 0.028, band 0.067 / 0.068 / 0.079, sums 0.991 / 0.998 / 0.997 (both terms
+    left out, stop 47's plan for such a scene: 0.063 / 0.038 / 0.032, band 0.118 / 0.105 / 0.103; both on every light:
+    0.049 / 0.034 / 0.030). Bounds: the achieved level + 10%, the sums within the goal's 3%."""
+    directory = Path(__file__).parents[2] / "benchmarks" / "references" / "materials"
+    scene = load_scene(directory / "skin1_sphere_keyrim.toml")
+    data = np.load(directory / "skin1_sphere_keyrim.npz")
+    result = render(scene)
+    assert tuple(result.report["plan"]["current_lights"]) == (False, True)
+    m = compare_images(result.image, data["image"].astype(np.float64), pixel_geometry(scene),
+                       coverage=data["coverage"].astype(np.float64))
+    assert np.all(np.array(m["mare_lit"]) <= (0.042, 0.032, 0.031)), m["mare_lit"]
+    assert np.all(np.array(m["mare_band"]) <= (0.074, 0.075, 0.087)), m["mare_band"]
+    assert np.all(np.abs(np.array(m["sum_ratio"]) - 1.0) <= 0.03), m["sum_ratio"]

@@ -170,8 +170,11 @@ def test_lights_on_both_sides_are_summed_apart():
     """A key light on the camera's side and one behind the sphere (eta 1, g 0: the first order is marched). The plan
     sums the light behind with the exit's current and the key light apart without it, and says so. The lights are
     opposite, so no sample sees both (a sample's oblique shift is its lights' flux-weighted mean travel, not linear in
-    the light where two light it): the direct sum's image is then each light's own image added (the key light's alone
-    has no current), to rounding. The mixed image is differentiable through both sums."""
+    the light where two light it): the image is then the key light's part plus the rim light's (each the same scene
+    with the other light off), to rounding, and the key light's part is the key light's own image without the current.
+    The mixed image is differentiable through both sums."""
+    import dataclasses
+
     from jaxsss.render import make_plan, prepare
     from tests.render.test_renderer import _scene
 
@@ -183,24 +186,32 @@ def test_lights_on_both_sides_are_summed_apart():
     # One ray per pixel everywhere: edge pixels (where more rays go) depend on the lights.
     camera = {"position": [0.0, -30.0, 10.0], "look_at": [0.0, 0.0, 0.0], "fov_deg": 25.0, "resolution": [12, 12],
               "edge_spp": 1}
-    scenes = [_scene(material=material, lights=lights, camera=camera) for lights in ([key, rim], [key], [rim])]
-    plans = [make_plan(s, method="direct", bssrdf="auto") for s in scenes]
-    assert [p.current_lights for p in plans] == [(False, True), (), (True,)]
-    assert [p.exit_current for p in plans] == [True, False, True]
-    item = {i.name: i for i in plans[0].items}["exit azimuth"]
+    scene, alone = (_scene(material=material, lights=lights, camera=camera) for lights in ([key, rim], [key]))
+    plan = make_plan(scene, method="direct", bssrdf="auto")
+    assert plan.current_lights == (False, True) and plan.exit_current
+    assert make_plan(alone, method="direct", bssrdf="auto").current_lights == ()
+    item = {i.name: i for i in plan.items}["exit azimuth"]
     assert item.included and "light[0] (on the camera's side) is summed apart" in item.reason
-    prepared = [prepare(s, method="direct", plan=p)[0] for s, p in zip(scenes, plans)]
-    assert [p.current_columns for p in prepared] == [(1,), None, None]
-    assert [p.bssrdf_exit for p in prepared] == ["multiple-current", "multiple-curved", "multiple-current"]
-    medium = scenes[0].material.medium
+    # The same plan with one light off (intensity 0): the same program, each side's part.
+    parts = [scene] + [dataclasses.replace(scene, lights=tuple(dataclasses.replace(light, intensity=light.intensity * on)
+                                                                for light, on in zip(scene.lights, keep)))
+                       for keep in ((1.0, 0.0), (0.0, 1.0))]
+    prepared = [prepare(s, method="direct", plan=plan)[0] for s in parts]
+    mixed = prepared[0]
+    assert mixed.current_columns == (1,) and mixed.bssrdf_exit == "multiple-current"
+    assert [side.bssrdf_exit for side in mixed.light_sides()] == ["multiple-current", "multiple-curved"]
+    medium = scene.material.medium
     images = [np.asarray(p.image(medium)) for p in prepared]
     assert np.all(np.isfinite(images[0])) and images[2].max() > 0.05 * images[1].max()
     np.testing.assert_allclose(images[0], images[1] + images[2], rtol=1e-9, atol=1e-12 * images[0].max())
+    own = prepare(alone, method="direct")[0]
+    assert own.bssrdf_exit == "multiple-curved"
+    np.testing.assert_allclose(images[1], np.asarray(own.image(medium)), rtol=1e-9, atol=1e-12 * images[0].max())
 
     # Forward mode against central differences along one direction of sigma_a (reverse mode through the white kernels:
     # tests/render/test_renderer.py).
     def image(sigma_a):
-        return prepared[0].image(eqx.tree_at(lambda m: m.sigma_a, medium, sigma_a))
+        return mixed.image(eqx.tree_at(lambda m: m.sigma_a, medium, sigma_a))
 
     x, v, h = medium.sigma_a, jnp.array([1.0, -0.5, 0.3]), 1e-6
     tangent = np.asarray(jax.jvp(image, (x,), (v,))[1])
