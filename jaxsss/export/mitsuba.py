@@ -19,10 +19,8 @@ Conventions matched (units: mm, so Mitsuba's unitless lengths are mm and its rad
   marble's albedo: :func:`rr_depth`).
 - **Lights** (same units): ``point`` (``intensity`` W/sr), ``directional`` (``irradiance`` W/mm^2 on a surface facing
   it), ``spot`` (``intensity`` W/sr on the axis, ``cutoff_angle = cone_deg``, ``beam_width = cone_deg -
-  falloff_deg``). Differs: Mitsuba's spot falls off *linearly in angle* between ``beam_width`` and
-  ``cutoff_angle``; jaxsss's uses a smoothstep (:func:`jaxsss.render.lights.spot_factor`). They agree inside the
-  beam, at the cutoff and half way; in between they differ by up to 0.096 of the on-axis intensity
-  (:func:`spot_falloff_difference`; measured on Mitsuba's own emitter in tests/export).
+  falloff_deg``): both fall off linearly in angle between ``beam_width`` and ``cutoff_angle``
+  (:func:`jaxsss.render.lights.spot_factor`; measured on Mitsuba's own emitter in tests/export).
   Area lights: a ``sphere`` (``center``, ``radius``) or ``rectangle`` shape (``to_world`` = ``look_at(position,
   position + direction, up)`` times ``scale(width/2, height/2, 1)``: the height runs along ``up``, the width along
   ``up x direction``, and it emits on the side ``direction`` points to, as jaxsss's) with an ``area`` emitter of
@@ -78,7 +76,6 @@ __all__ = [
     "scene_dict",
     "scene_xml",
     "select_variant",
-    "spot_falloff_difference",
     "to_mitsuba_dict",
     "write_scene",
 ]
@@ -152,20 +149,6 @@ def rr_depth(albedo_max: float) -> int:
     # albedo^2 / 0.95 per bounce once it runs.
     start = RR_SURVIVAL_CAP if albedo_max**2 <= RR_SURVIVAL_CAP else RR_START_THROUGHPUT
     return min(RR_DEPTH_MAX, 5 + math.ceil(math.log(start) / math.log(albedo_max)))
-
-
-def spot_falloff_difference(cone_deg: float, falloff_deg: float, n: int = 2001) -> float:
-    """Largest difference, as a fraction of the on-axis intensity, between jaxsss's smoothstep spot falloff and
-    Mitsuba's linear-in-angle one (``beam_width = cone_deg - falloff_deg``, ``cutoff_angle = cone_deg``)."""
-    from jaxsss.render.lights import spot_factor
-
-    if falloff_deg <= 0.0:
-        return 0.0
-    theta = np.linspace(0.0, cone_deg, n)
-    ours = spot_factor(np.cos(np.radians(theta)), cone_deg, falloff_deg)
-    # Mitsuba's spot: 1 inside beam_width, (cutoff - theta) / (cutoff - beam_width) in the transition, 0 outside.
-    theirs = np.clip((cone_deg - theta) / falloff_deg, 0.0, 1.0)
-    return float(np.max(np.abs(ours - theirs)))
 
 
 def _light(light, key: str, mesh_files: dict | None = None) -> dict:

@@ -2,7 +2,7 @@
 
 Point and spot lights of radiant intensity ``I`` (W/sr) deliver ``I / |S - M|^2`` (W/mm^2, on a surface facing
 them) at a point ``M`` along the straight line from ``S`` -- the paper ignores refraction at the boundary, and so do
-we; directional lights deliver their irradiance ``E``. A spot light's cone factor is the renderer's smoothstep
+we; directional lights deliver their irradiance ``E``. A spot light's cone factor is the renderer's linear falloff
 (:func:`jaxsss.render.lights.spot_factor`). The attenuation inside the medium is applied by the caller. All of it is
 geometry: it carries no gradient with respect to the layer coefficients.
 """

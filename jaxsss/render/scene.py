@@ -41,7 +41,7 @@ Schema (units: mm, 1/mm, degrees; "3 values" means ``[x, y, z]`` or ``[r, g, b]`
     intensity = 1.0e4         # >= 0, one number or 3 values: W/sr (point, spot) or W/mm^2 (directional,
                               # irradiance on a surface facing the light)
     cone_deg = 30.0           # spot: half-angle where the intensity reaches zero, in (0, 180]
-    falloff_deg = 5.0         # spot: smoothstep width inside cone_deg, in [0, cone_deg] (default 0)
+    falloff_deg = 5.0         # spot: width of the linear falloff inside cone_deg, in [0, cone_deg] (default 0)
     radiance = 2.0            # sphere, rectangle: emitted radiance W/(mm^2 sr), >= 0, one number or 3 values
     radius = 5.0              # sphere: mm, > 0 (position is its centre)
     size = [20.0, 10.0]       # rectangle: [width, height] in mm, > 0; position is its centre, direction the normal
@@ -196,7 +196,7 @@ class Light:
         direction: ``(3,)`` unit vector the light travels along (directional; spot: the cone axis; rectangle: the
             normal of its emitting side), else ``None``.
         cone_deg: spot: the half-angle where the intensity reaches zero.
-        falloff_deg: spot: full intensity inside ``cone_deg - falloff_deg``, smoothstep to zero at ``cone_deg``.
+        falloff_deg: spot: full intensity inside ``cone_deg - falloff_deg``, linear in the angle to zero at ``cone_deg``.
         radius: sphere: mm.
         size: rectangle: ``(width, height)`` mm.
         up: rectangle: ``(3,)`` unit direction of the height edge, orthogonal to ``direction``.

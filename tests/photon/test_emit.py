@@ -110,13 +110,13 @@ def test_spot_wider_than_the_sphere_samples_the_sphere_with_its_angular_factor()
     theta = np.degrees(np.arccos(np.clip(rays.direction @ light.direction, -1, 1)))
     assert theta.max() < 10.0
     np.testing.assert_allclose(rays.power.sum(axis=0), light.intensity * omega, rtol=1e-12)
-    # A spot of 9 degrees (inside the sphere's cone: it samples its own) with the smoothstep over all of it: each
-    # photon carries the intensity times its solid angle times the factor at its direction.
+    # A spot of 9 degrees (inside the sphere's cone: it samples its own) with the falloff over all of it: each
+    # photon carries the intensity times its solid angle times the factor at its direction (linear in the angle).
     soft = spot(light.position, light.direction, cone_deg=9.0, falloff_deg=9.0)
     r2 = emit_photons([soft], CENTRE, RADIUS, 3000, seed=5)
     th = np.degrees(np.arccos(np.clip(r2.direction @ soft.direction, -1, 1)))
     s = np.clip((9.0 - th) / 9.0, 0, 1)
-    np.testing.assert_allclose(r2.power, (s * s * (3 - 2 * s))[:, None] * soft.intensity * r2.spread[:, None],
+    np.testing.assert_allclose(r2.power, s[:, None] * soft.intensity * r2.spread[:, None],
                                rtol=1e-12, atol=1e-300)
 
 
