@@ -52,7 +52,8 @@ from jaxsss.medium import Medium
 from jaxsss.phase import hg_phase
 
 __all__ = ["AREA_SAMPLES", "FIRST_ORDER_LIGHTS", "MARCH_NODES", "MARCH_S_MIN", "FirstOrderPaths",
-           "first_order_paths", "first_order_profile", "first_order_radiance", "first_order_total"]
+           "diffuse_first_order_restore", "first_order_paths", "first_order_profile", "first_order_radiance",
+           "first_order_total"]
 
 MARCH_NODES = 48
 """Gauss-Legendre nodes in ``log s`` along each view ray (about eight per decade between :data:`MARCH_S_MIN` and a
@@ -245,6 +246,25 @@ def first_order_total(mu, albedo):
     safe = jnp.where(mu > 0.0, mu, 1.0)
     # Single scattering's reflectance: (a / 2) int_0^1 mu' / (mu + mu') dmu'.
     return 0.5 * jnp.asarray(albedo) * (1.0 - jnp.where(mu > 0.0, safe * jnp.log((1.0 + safe) / safe), 0.0))
+
+
+def diffuse_first_order_restore(albedo):
+    """``(C,)``: ``A_d / (A_d - A1_d)``, diffuse light's total reflectance (every order) over that of its orders >= 2,
+    for albedos ``(C,)`` (index-matched, ``g = 0``; 1 where nothing is reflected). Diffuse light (the occluders' and the
+    object's own bounce) is not marched: it enters the orders >= 2 profiles times this factor, which gives back its
+    first order's share of the light (a fifth at albedo 1, most of it at a low albedo), placed as the orders >= 2
+    place theirs. ``A_d = 2 int A(mu) mu dmu`` (:func:`jaxsss.render.bssrdf.directional_albedo`), ``A1_d`` the same of
+    :func:`first_order_total`."""
+    from jaxsss.render.bssrdf import directional_albedo
+
+    a = jnp.atleast_1d(jnp.asarray(albedo))
+    t, w = np.polynomial.legendre.leggauss(64)
+    t, w = jnp.asarray(0.5 * (t + 1.0))[:, None], jnp.asarray(w * 0.5 * (t + 1.0))[:, None]
+    # The cosine-weighted hemispherical means of every order and of the first: 2 int f(mu) mu dmu.
+    every = jnp.sum(w * directional_albedo(t, a), axis=0)
+    first = jnp.sum(w * first_order_total(t, a), axis=0)
+    rest = every - first
+    return jnp.where(rest > 0.0, every / jnp.where(rest > 0.0, rest, 1.0), 1.0)
 
 
 def first_order_profile(rho, mu: float, albedo, g: float = 0.0):

@@ -316,7 +316,7 @@ def _exit_azimuth(scene, first_order: bool) -> tuple[PlanItem | None, tuple]:
 
 def _first_order(scene, kernel: str, indirect: bool) -> tuple[bool, str]:
     """Whether the white kernel's first order is marched in the object's geometry (:mod:`jaxsss.render.first_order`),
-    and why (the plan's line)."""
+    and why (the plan's line; ``indirect``: the scene has indirect light, which enters the profiles only)."""
     from jaxsss.render.first_order import FIRST_ORDER_LIGHTS
 
     medium = scene.material.medium
@@ -331,10 +331,12 @@ def _first_order(scene, kernel: str, indirect: bool) -> tuple[bool, str]:
                        f"scattering (eta = 1, g = 0); {kept}")
     if other:
         return False, f"a {other[0]} light is not marched; {kept}"
-    if indirect:
-        return False, f"indirect light (occluders' or the object's own bounce) enters the profiles only; {kept}"
     if scene.material.texture is not None:
         return False, f"the texture scales the profiles' entry only; {kept}"
-    return True, ("marched along each view ray inside, the light's path to each point traced (eta = 1, g = 0); the "
-                  "white profiles keep orders >= 2 and leave by Chandrasekhar's multiple-scattering exit, less "
-                  "grazing where the surface curves (jaxsss.render.exit_curvature)")
+    why = ("marched along each view ray inside, the light's path to each point traced (eta = 1, g = 0); the white "
+           "profiles keep orders >= 2 and leave by Chandrasekhar's multiple-scattering exit, less grazing where the "
+           "surface curves (jaxsss.render.exit_curvature)")
+    if indirect:
+        why += ("; the indirect light (occluders' or the object's own bounce) is not marched: it enters the orders >= 2 "
+                "with its first order's share of the light (jaxsss.render.first_order.diffuse_first_order_restore)")
+    return True, why

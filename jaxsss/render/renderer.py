@@ -27,7 +27,7 @@ from jaxsss.render.bssrdf import (albedo_correction, current_radiance, exit_mode
                                   shift_reach, surface_tangents, white_kernel, white_tables)
 from jaxsss.render.passage import PASSAGE_FLOOR, cut_matters, interaction_probability, truncated_travel, view_chords
 from jaxsss.render.camera import camera_frame
-from jaxsss.render.first_order import first_order_radiance
+from jaxsss.render.first_order import diffuse_first_order_restore, first_order_radiance
 from jaxsss.render.lights import light_columns
 from jaxsss.render.methods import Preparation, register_method
 from jaxsss.render.octree import build_octree
@@ -141,6 +141,9 @@ class Prepared(ReflectingPoints):
                 irradiance = irradiance * albedo_correction(self.light_cos, self.bssrdf_mus, albedo)
                 if indirect is not None:
                     indirect = indirect * albedo_correction(None, self.bssrdf_mus, albedo)
+                    if self.bssrdf_exit in MARCHED_EXITS:
+                        # Diffuse light is not marched: the orders >= 2 carry its first order's share too.
+                        indirect = indirect * diffuse_first_order_restore(albedo)
             flux = incident_flux(self.bssrdf_mus, self.areas, self.light_cos, irradiance, indirect,
                                  self.texture, self.light_tangent, travel)
             if chord_rows is None:

@@ -12,10 +12,12 @@ import trimesh
 
 from jaxsss.medium import Medium
 from jaxsss.render import bssrdf as B
-from jaxsss.render.first_order import (AREA_SAMPLES, MARCH_NODES, first_order_paths, first_order_profile,
+from jaxsss.render.first_order import (AREA_SAMPLES, MARCH_NODES, diffuse_first_order_restore, first_order_paths,
+                                       first_order_profile,
                                        first_order_radiance, first_order_total)
 from jaxsss.render.rays import SceneGeometry
 from jaxsss.render.scene import Light
+from tests.gradcheck import assert_grad_matches_fd
 
 MUS = (1.0, 0.5, 0.1)
 
@@ -191,8 +193,9 @@ def test_the_kernel_keeps_the_orders_above_the_first():
 
 
 def test_the_plan_marches_the_first_order_where_it_can():
-    """On at eta = 1 with g = 0 under point and sphere lights on a lone convex object; off, with the reason, at a
-    dielectric boundary, for g > 0, and where indirect light enters the profiles (the teapot's own bounce)."""
+    """On at eta = 1 with g = 0 under point and sphere lights on a lone convex object, and on the teapot, whose own
+    bounce enters the orders >= 2 with its first order's share (the line says so); off, with the reason, at a
+    dielectric boundary and for g > 0."""
     from pathlib import Path
 
     from jaxsss.render import load_scene
@@ -206,9 +209,28 @@ def test_the_plan_marches_the_first_order_where_it_can():
         assert item.included == plan.first_order
         return plan.first_order, item.reason
 
-    for name in ("skin1_sphere", "skin1_sphere_arealight", "ketchup_sphere"):
+    for name in ("skin1_sphere", "skin1_sphere_arealight", "ketchup_sphere", "marble_teapot"):
         on, why = line(name)
         assert on and "orders >= 2" in why, (name, why)
-    for name, reason in (("skin1_sphere_env", "eta = 1.4"), ("g09_sphere", "g = 0.9"), ("marble_teapot", "indirect")):
+        assert ("first order's share" in why) == (name == "marble_teapot"), (name, why)
+    for name, reason in (("skin1_sphere_env", "eta = 1.4"), ("g09_sphere", "g = 0.9")):
         on, why = line(name)
         assert not on and reason in why, (name, why)
+
+
+def test_diffuse_light_keeps_its_first_orders_share():
+    """``diffuse_first_order_restore``: every order's diffuse reflectance over the orders >= 2's. Reference: at albedo
+    1 every photon comes back (``A_d = 1``) and the first order's share is ``2 int_0^1 mu (1 / 2) (1 - mu ln((1 + mu) /
+    mu)) dmu`` (scipy's quadrature of Chandrasekhar's single scattering). Invariants: above 1, falling with the albedo
+    (the first order is most of the light at a low albedo); 1 where nothing comes back. Shapes; autodiff."""
+    from scipy.integrate import quad
+
+    first = quad(lambda m: m * (1.0 - m * np.log((1.0 + m) / m)), 0.0, 1.0)[0]
+    got = np.asarray(diffuse_first_order_restore(jnp.array([1.0])))
+    np.testing.assert_allclose(got, 1.0 / (1.0 - first), rtol=1e-6)
+    a = jnp.array([0.0, 0.02, 0.3, 0.7, 0.9, 0.99, 0.999])
+    r = np.asarray(diffuse_first_order_restore(a))
+    assert r.shape == (7,) and r[0] == 1.0 and np.all(np.isfinite(r))
+    assert np.all(r[1:] > 1.0) and np.all(np.diff(r[1:]) < 0.0) and r[1] > 20.0
+    assert np.asarray(diffuse_first_order_restore(0.5)).shape == (1,)
+    assert_grad_matches_fd(lambda x: jnp.sum(diffuse_first_order_restore(x)), jnp.array([0.3, 0.8, 0.95]), rtol=1e-5)
