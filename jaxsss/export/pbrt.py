@@ -19,8 +19,8 @@ Other conventions:
   ``Integrator "volpath"`` (which handles BSSRDFs).
 - Lights: ``point`` (``I`` W/sr), ``distant`` (``L`` is the irradiance in W/mm^2 on a surface facing it), ``spot``
   (``coneangle = cone_deg``, ``conedelta = falloff_deg``; pbrt-v4's falloff is a smoothstep in cos(theta), jaxsss's
-  linear in theta: they agree inside the beam, half way and outside the cone). pbrt-v4 divides an RGB light's spectrum by
-  the luminance of its illuminant, so ``rgb I [1 1 1]`` renders as RGB 1 on its film.
+  linear in theta: they agree inside the beam, half way and outside the cone). pbrt-v4 divides an RGB light's
+  spectrum by the luminance of its illuminant, so ``rgb I [1 1 1]`` renders as RGB 1 on its film.
 - Area lights: ``AreaLightSource "diffuse"`` (``L`` = the radiance, one-sided) on a ``sphere`` (``Translate`` to its
   centre) or on a two-triangle ``trianglemesh`` whose per-vertex ``normal N`` is the light's ``direction`` (pbrt-v4
   turns the geometric normal to the shading normal, and a one-sided diffuse area light emits on that side), with a

@@ -196,7 +196,8 @@ class Light:
         direction: ``(3,)`` unit vector the light travels along (directional; spot: the cone axis; rectangle: the
             normal of its emitting side), else ``None``.
         cone_deg: spot: the half-angle where the intensity reaches zero.
-        falloff_deg: spot: full intensity inside ``cone_deg - falloff_deg``, linear in the angle to zero at ``cone_deg``.
+        falloff_deg: spot: full intensity inside ``cone_deg - falloff_deg``, linear in the angle to zero at
+            ``cone_deg``.
         radius: sphere: mm.
         size: rectangle: ``(width, height)`` mm.
         up: rectangle: ``(3,)`` unit direction of the height edge, orthogonal to ``direction``.

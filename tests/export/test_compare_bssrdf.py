@@ -95,9 +95,9 @@ def test_marble_teapot_against_its_path_traced_reference():
     marched, the object's own bounce with its first order's share): mare_lit 0.035 / 0.033 / 0.033, band 0.099 / 0.110
     / 0.125, sums 1.002 / 0.997 / 0.994 (not marched: 0.032 / 0.030 / 0.031, band 0.089 / 0.100 / 0.113; 2026-11-27,
     with the edge pixels' nine rays, jaxsss.render.shading.edge_pixels: mare_lit 0.035 / 0.032 / 0.032, terminator
-    band 0.109 / 0.105 / 0.114, sums 1.007 / 1.002 / 0.999) -- every goal met. With one ray per pixel: 0.047 / 0.044 / 0.046, band
-    0.163 / 0.178 / 0.205 (signed -8 / -11 / -13%; the pixel centres above the base were 0.23-0.55 of the pixels'
-    area means), sums 1.010 / 1.006 / 1.003.
+    band 0.109 / 0.105 / 0.114, sums 1.007 / 1.002 / 0.999) -- every goal met. With one ray per pixel: 0.047 / 0.044 /
+    0.046, band 0.163 / 0.178 / 0.205 (signed -8 / -11 / -13%; the pixel centres above the base were 0.23-0.55 of the
+    pixels' area means), sums 1.010 / 1.006 / 1.003.
 
     History, against the previous reference (roulette from the 57th bounce: Mitsuba's 0.95 survival cap gave it
     infinite variance at this albedo, 2.2-2.5% pixel noise and, in practice, 2.5-3% too little light;

@@ -193,9 +193,11 @@ def test_lights_on_both_sides_are_summed_apart():
     item = {i.name: i for i in plan.items}["exit azimuth"]
     assert item.included and "light[0] (on the camera's side) is summed apart" in item.reason
     # The same plan with one light off (intensity 0): the same program, each side's part.
-    parts = [scene] + [dataclasses.replace(scene, lights=tuple(dataclasses.replace(light, intensity=light.intensity * on)
-                                                                for light, on in zip(scene.lights, keep)))
-                       for keep in ((1.0, 0.0), (0.0, 1.0))]
+    def lit(keep):
+        return dataclasses.replace(scene, lights=tuple(dataclasses.replace(light, intensity=light.intensity * on)
+                                                       for light, on in zip(scene.lights, keep)))
+
+    parts = [scene, lit((1.0, 0.0)), lit((0.0, 1.0))]
     prepared = [prepare(s, method="direct", plan=plan)[0] for s in parts]
     mixed = prepared[0]
     assert mixed.current_columns == (1,) and mixed.bssrdf_exit == "multiple-current"
