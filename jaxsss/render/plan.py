@@ -338,5 +338,6 @@ def _first_order(scene, kernel: str, indirect: bool) -> tuple[bool, str]:
            "surface curves (jaxsss.render.exit_curvature)")
     if indirect:
         why += ("; the indirect light (occluders' or the object's own bounce) is not marched: it enters the orders "
-                ">= 2 with its first order's share of the light (jaxsss.render.first_order.diffuse_first_order_restore)")
+                ">= 2 with its first order's share of the light "
+                "(jaxsss.render.first_order.diffuse_first_order_restore)")
     return True, why
