@@ -61,9 +61,10 @@ REFERENCES = ROOT / "benchmarks" / "references" / "materials"
 NAME = "render_materials"
 REFERENCE_SPP = {"apple_sphere": 4096, "chicken2_sphere": 4096, "cream_sphere": 4096, "potato_sphere": 4096,
                  "skimmilk_sphere": 4096, "wholemilk_sphere": 4096, "skin2_sphere": 4096, "skin2_sphere_8mm": 4096,
-                 "skin1_sphere_8mm": 4096, "skin1_sphere_backlit": 32768, "skin1_sphere_keyrim": 16384}
-"""The scenes and their reference's spp (the back-lit one at 8x: its lit pixels are few and dim; the key and rim lit one
-at 4x, for its rim)."""
+                 "skin1_sphere_8mm": 4096, "skin1_sphere_backlit": 32768, "skin1_sphere_keyrim": 16384,
+                 "chicken1_sphere_backlit": 16384}
+"""The scenes and their reference's spp (skin1 lit from behind at 8x: its lit pixels are few and dim; chicken1 lit from
+behind and the key and rim lit one at 4x, for the dark side and the rim)."""
 SCENES = tuple(REFERENCE_SPP)
 CONFIG = {"quick": {"mitsuba_spp": (4, 16, 64)}, "full": {"mitsuba_spp": (16, 64, 256, 1024)}}
 ALBEDO_GOAL = 0.9

@@ -275,6 +275,28 @@ def test_skin1_lit_from_behind_against_its_path_traced_reference():
     assert np.all(np.array(m["sum_ratio"]) >= (0.84, 0.87, 0.90)), m["sum_ratio"]
 
 
+def test_chicken1_lit_from_behind_and_its_far_dark_side():
+    """chicken1 on the 20 mm sphere (3.3 ``l_u`` in red) with the back-lit scene's light (the benchmark's reference,
+    benchmarks/references/materials; 16384 spp, noise 3.2 / 2.1 / 1.7%). The far dark side (cos -1 to -0.5 to the
+    light) is lit by light that crossed the sphere, which converges near the light's antipode: the curvature
+    correction's antipode bin (jaxsss.render.curvature_correction.fit_curvature_correction) is what lights it. Achieved
+    (2026-11-29): mare_lit 0.176 / 0.308 / 0.283, band 0.034 / 0.073 / 0.136, sums 0.881 / 0.826 / 0.855; the far dark
+    side's bias -0.12 in red (-0.28 with the antipode's bin dropped and six radii: mare_lit 0.248 in red, sums 0.826).
+    Green and blue miss the goals (the dark side's exitance, docs/path_tracer.md). Bounds: the achieved level + 10%."""
+    directory = Path(__file__).parents[2] / "benchmarks" / "references" / "materials"
+    scene = load_scene(directory / "chicken1_sphere_backlit.toml")
+    data = np.load(directory / "chicken1_sphere_backlit.npz")
+    result = render(scene)
+    assert result.report["plan"]["exit_current"]
+    ref, coverage, pixels = data["image"].astype(np.float64), data["coverage"].astype(np.float64), pixel_geometry(scene)
+    m = compare_images(result.image, ref, pixels, coverage=coverage)
+    assert np.all(np.array(m["mare_lit"]) <= (0.194, 0.339, 0.311)), m["mare_lit"]
+    assert np.all(np.array(m["mare_band"]) <= (0.037, 0.080, 0.150)), m["mare_band"]
+    assert np.all(np.array(m["sum_ratio"]) >= (0.86, 0.80, 0.83)), m["sum_ratio"]
+    far = error_by_cos(result.image, ref, pixels, coverage=coverage, edges=np.array([-1.0, -0.5]))[0]
+    assert far["n"] > 1000 and -0.16 < far["bias"][0] < 0.0, far
+
+
 def test_skin1_under_a_key_and_a_rim_light_against_its_path_traced_reference():
     """The skin1 sphere under a key light on the camera's side and the back-lit scene's light behind it (the benchmark's
     reference, benchmarks/references/materials; 16384 spp, noise 2.1 / 1.2 / 1.3%): the plan sums the rim light's part
