@@ -624,6 +624,11 @@ class WhiteKernel(eqx.Module):
     # (jaxsss.render.exit_current); the sums then carry 3K more rows, each node's exitance times a(d) and the
     # pair's tangential direction from the node's (shifted) entry (x, y, z).
     exit_current: tuple | None = None
+    # An oblique beam's light ahead of its entry (None: off; with the curvature's transport correction): sigma_t'
+    # (C,) and the factor's B and G rows (K, C, len(CORRECTION_KAPPA), D) (jaxsss.render.oblique_azimuth); each far
+    # pair of an oblique node is multiplied by G (1 + B cos phi), phi the pair's azimuth about the entry from the
+    # travel.
+    azimuth: tuple | None = None
     # The near field's mean flux density weighted by w R instead of w (a profile without the first order's peak:
     # :func:`multiple_orders`; :meth:`near_terms`).
     profile_weighted_near: bool = eqx.field(static=True, default=False)
@@ -840,13 +845,35 @@ class WhiteKernel(eqx.Module):
         h = hat_weights(mu, PASSAGE_MUS)  # (P, 3)
         return 1.0 - jnp.sum(h[:, :, None] * loss, axis=1, keepdims=True)
 
+    def _azimuth(self, delta, sources, normals):
+        """``(P, K, C)``: each oblique node's factor ``G (1 + B cos phi)`` (:mod:`jaxsss.render.oblique_azimuth`) at
+        the pair's chord and curvature, ``phi`` the azimuth of the shaded point about the (unshifted) entry from the
+        node's travel (its shift's direction), in the entry's tangent plane; 1 for the normal node."""
+        from jaxsss.render.oblique_azimuth import azimuth_factor
+
+        sigma_t_prime, b_rows, g_rows = self.azimuth
+        d = jnp.sqrt(jnp.maximum(jnp.sum(delta * delta, axis=-1), 1e-300))[:, None, None]
+        kappa = jnp.maximum(pair_curvature(delta, normals[0][:, :3], normals[1]), 0.0)[:, None, None]
+        # The offset in the entry's tangent plane, and its cosine with each node's travel (0 where there is none).
+        n_p = normals[1]
+        tangential = delta - jnp.sum(delta * n_p, axis=-1, keepdims=True) * n_p
+        shift = sources[:, 1:4]  # (P, 3, K, C)
+        along = sum(tangential[:, i, None, None] * shift[:, i] for i in range(3))
+        norm = jnp.sqrt(jnp.maximum(jnp.sum(tangential * tangential, axis=-1), 1e-300))[:, None, None] * jnp.sqrt(
+            jnp.maximum(jnp.sum(shift * shift, axis=1), 1e-300))
+        cos_phi = jnp.where(norm > 1e-12, along / jnp.where(norm > 1e-12, norm, 1.0), 0.0)
+        return azimuth_factor(b_rows, g_rows, kappa / sigma_t_prime, d * sigma_t_prime, cos_phi)
+
     def pair(self, delta, sources, normals=None, weights=None):
         """``(P, K, C)``: ``R_k(|delta - s_k|) F_k`` for offsets ``delta = x - P`` ``(P, 3)`` mm and the entities'
         :meth:`sources` (``s_k = 0`` without a shift), times the curvature ratio when ``normals = (n_x, n_P)`` are
-        given. The nodes stay apart: their exit distributions differ (:func:`exit_radiance_nodes`). With the shaded
-        points' exit ``weights`` ``(P, J, C)`` (:func:`exit_weights`), the pairs' radiance ``(P, C)`` instead."""
+        given (and the oblique nodes' azimuth when the kernel has it). The nodes stay apart: their exit distributions
+        differ (:func:`exit_radiance_nodes`). With the shaded points' exit ``weights`` ``(P, J, C)``
+        (:func:`exit_weights`), the pairs' radiance ``(P, C)`` instead."""
         r, f = self._distance(delta, sources)
         v = self._curved(r, delta, normals) * f
+        if self.azimuth is not None and normals is not None:
+            v = v * self._azimuth(delta, sources, normals)
         view = self._view_kept(delta, normals)  # (P, 1, C) or 1
         if weights is None:
             return self._split(v * view, delta, normals, sources)
@@ -963,7 +990,8 @@ def _log(x):
 def white_kernel(medium: Medium, sources: WhiteSources, mus: tuple = (1.0,) + KERNEL_MUS,
                  shift: bool = False, curvature: bool = False, passage: float | None = None,
                  exit_split: bool = False, first_order: bool = False, exit_curved: bool = False,
-                 exit_current: bool = False, curvature_transport: bool = False) -> WhiteKernel:
+                 exit_current: bool = False, curvature_transport: bool = False,
+                 oblique_azimuth: bool = False) -> WhiteKernel:
     """Tabulate the profiles at incidence cosines ``mus`` (1, then the oblique nodes of ``sources``, from
     :func:`white_tables`) for ``medium`` on the grid (differentiable in ``sigma_a`` and ``sigma_s'``): normal incidence
     from the white Monte Carlo family, oblique nodes from ``sources`` (module docstring). ``shift``: shift the
@@ -981,7 +1009,8 @@ def white_kernel(medium: Medium, sources: WhiteSources, mus: tuple = (1.0,) + KE
     sums carry each node's current too, three rows of ``a(d)`` times the pair's tangential direction from the node's
     entry (:mod:`jaxsss.render.exit_current`). ``curvature_transport`` (with ``curvature`` and ``first_order``): the
     curvature ratio times its transport correction ``Q``, capped at the correction table's smallest sphere
-    (:mod:`jaxsss.render.curvature_correction`)."""
+    (:mod:`jaxsss.render.curvature_correction`). ``oblique_azimuth`` (with ``curvature_transport`` and ``shift``): the
+    oblique nodes' far pairs times ``G (1 + B cos phi)`` (:mod:`jaxsss.render.oblique_azimuth`)."""
     from jaxsss.mc.white_family import load_white_family
     from jaxsss.render.passage import passage_cells, passage_loss_table
 
@@ -1035,6 +1064,17 @@ def white_kernel(medium: Medium, sources: WhiteSources, mus: tuple = (1.0,) + KE
     if curvature_transport and not (curvature and first_order):
         raise ValueError("white_kernel(curvature_transport=True) needs curvature=True and first_order=True (the "
                          "correction is the orders >= 2's)")
+    if oblique_azimuth:
+        from jaxsss.render.oblique_azimuth import azimuth_rows
+
+        if not (curvature_transport and shift):
+            raise ValueError("white_kernel(oblique_azimuth=True) needs curvature_transport=True and shift=True (the "
+                             "factor is taken over the shifted kernel with Q, about each node's travel)")
+        c = kernel.sigma_s.shape
+        kernel = eqx.tree_at(lambda k: k.azimuth, kernel,
+                             (jnp.broadcast_to(medium.sigma_a + medium.sigma_s_prime, c),
+                              *azimuth_rows(tuple(mus), jnp.broadcast_to(medium.alpha_prime, c))),
+                             is_leaf=lambda x: x is None)
     if not curvature:
         return kernel
     return eqx.tree_at(lambda k: k.curvature, kernel,

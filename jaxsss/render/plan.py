@@ -265,7 +265,8 @@ def _exit_azimuth(scene, first_order: bool) -> tuple[PlanItem | None, tuple]:
     looks against its flow at the terminator, and the kernels' short exitance there stands in for the azimuth's loss;
     with a light behind the object it looks along the flow. The light of every light behind is summed with the exit's
     current (:mod:`jaxsss.render.exit_current`; the orders >= 2 of a marched first order only), along the flow only,
-    with the curvature ratio's far field corrected by transport (:mod:`jaxsss.render.curvature_correction`). The light
+    with the curvature ratio's far field corrected by transport (:mod:`jaxsss.render.curvature_correction`) and the
+    oblique beams' light ahead of their entry (:mod:`jaxsss.render.oblique_azimuth`). The light
     of a light on the camera's side is summed without them: the far field would undo its terminator's cancellation
     (chicken1 lit from the camera's side: 0.034 -> 0.156 per pixel in red). With lights on both sides the two are
     summed apart, each with its own kernel. The angle is the one between the camera and each light about the centre
@@ -308,10 +309,11 @@ def _exit_azimuth(scene, first_order: bool) -> tuple[PlanItem | None, tuple]:
              "the image took 2.3-3.0x as long as with one)" if front else "")
     return PlanItem("exit azimuth", True,
                     f"{seen} along the light's flow: the exit's current is added where the view looks along it "
-                    "(jaxsss.render.exit_current; 1.7-1.9x the sums' time) and the curvature ratio's far field is "
-                    f"corrected by transport (jaxsss.render.curvature_correction) for the lights behind{apart}; still "
-                    "16-31% per pixel off on back-lit spheres, 20-45% too dark past the terminator "
-                    "(docs/path_tracer.md)"), tuple(behind)
+                    "(jaxsss.render.exit_current; 1.7-1.9x the sums' time), the curvature ratio's far field is "
+                    "corrected by transport (jaxsss.render.curvature_correction) and oblique beams keep their light "
+                    f"ahead of the entry (jaxsss.render.oblique_azimuth) for the lights behind{apart}; still 10-26% "
+                    "per pixel off on back-lit spheres, 5-30% too dark past the terminator (docs/path_tracer.md)"), \
+        tuple(behind)
 
 
 def _first_order(scene, kernel: str, indirect: bool) -> tuple[bool, str]:

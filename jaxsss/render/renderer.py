@@ -170,7 +170,9 @@ class Prepared(ReflectingPoints):
                             exit_curved=self.bssrdf_exit in ("multiple-curved", "multiple-current"),
                             exit_current=self.bssrdf_exit == "multiple-current",
                             curvature_transport=(self.bssrdf_exit == "multiple-current"
-                                                 and self.ent_normal is not None))
+                                                 and self.ent_normal is not None),
+                            oblique_azimuth=(self.bssrdf_exit == "multiple-current" and self.ent_normal is not None
+                                             and shift))
 
     @property
     def normals(self):

@@ -196,8 +196,9 @@ def test_skin1_at_a_dielectric_boundary_under_a_sky_against_its_path_traced_refe
     its own noise 3.3 / 2.6 / 2.9% per pixel, part of mare_lit here). Achieved (2026-11-27, with Chandrasekhar's exit
     distribution at the refracted cosines, jaxsss.render.bssrdf.refracted_exit_distribution): mare_lit 0.040 / 0.037 /
     0.047, sums 0.995 / 0.988 / 0.973, the blue error flat across the disc (-3.8% at the centre, -2.8% at the limb);
-    with sample density 2, 0.040 / 0.036 / 0.044, sums 0.999 / 0.995 / 0.979. With a Lambertian exit through the Fresnel boundary (2026-11-24): 0.042 / 0.045 / 0.055, sums 1.001 / 0.994 /
-    0.979, blue +2.9% at the centre and -7.4% at the limb. Without the curvature ratio both were 5-12% too dark:
+    with sample density 2, 0.040 / 0.036 / 0.044, sums 0.999 / 0.995 / 0.979. With a Lambertian exit through the
+    Fresnel boundary (2026-11-24): 0.042 / 0.045 / 0.055, sums 1.001 / 0.994 / 0.979, blue +2.9% at the centre and
+    -7.4% at the limb. Without the curvature ratio both were 5-12% too dark:
     mare_lit 0.119 / 0.082 / 0.067, sums 0.884 / 0.929 / 0.955 (docs/path_tracer.md, "Curvature"). Before the family,
     auto fell back to the dipole plus single scattering: mare_lit 0.102 / 0.374 / 0.657, sums 1.120 / 1.401 / 1.661.
     The same sky at eta 1.4 (``skin1_sphere_env``, 65536 spp, noise 2.6 / 1.9 / 2.1%): 0.035 / 0.030 / 0.040, sums
@@ -257,11 +258,12 @@ def test_skin1_lit_from_behind_against_its_path_traced_reference():
     """The skin1 sphere with the point light at 138 degrees from the camera about it (the benchmark's reference,
     benchmarks/references/materials; 32768 spp): the camera sees the terminator along the light's flow, which the plan
     says, and keeps the exit's current there (jaxsss.render.exit_current) with the curvature ratio's far field
-    corrected by transport (jaxsss.render.curvature_correction). The goals are missed. Achieved (2026-11-29): mare_lit
-    0.211 / 0.214 / 0.208, band 0.153 / 0.177 / 0.220, sums 0.853 / 0.887 / 0.913; the exitance past the terminator is
-    still short (docs/path_tracer.md, "The exit's current, kept where a light is behind the object"). With the current
-    alone: 0.327 / 0.222 / 0.209, band 0.183 / 0.183 / 0.221, sums 0.801 / 0.882 / 0.912. With neither: 0.507 / 0.387 /
-    0.306, band 0.346 / 0.327 / 0.324, sums 0.660 / 0.781 / 0.856. Bounds: the achieved level + 10%."""
+    corrected by transport (jaxsss.render.curvature_correction) and the oblique beams' light ahead of their entry
+    (jaxsss.render.oblique_azimuth). The goals are missed. Achieved (2026-11-29, stop 49): mare_lit 0.155 / 0.148 /
+    0.184, band 0.108 / 0.128 / 0.193, sums 0.898 / 0.924 / 0.925; the exitance past the terminator is still short
+    (docs/path_tracer.md, "The far dark side"). Without the oblique azimuth (stop 48): 0.211 / 0.214 / 0.208, band
+    0.153 / 0.177 / 0.220, sums 0.853 / 0.887 / 0.913. With the current alone: 0.327 / 0.222 / 0.209. With neither:
+    0.507 / 0.387 / 0.306, band 0.346 / 0.327 / 0.324, sums 0.660 / 0.781 / 0.856. Bounds: the achieved level + 10%."""
     directory = Path(__file__).parents[2] / "benchmarks" / "references" / "materials"
     scene = load_scene(directory / "skin1_sphere_backlit.toml")
     data = np.load(directory / "skin1_sphere_backlit.npz")
@@ -270,18 +272,20 @@ def test_skin1_lit_from_behind_against_its_path_traced_reference():
     assert azimuth["included"] and azimuth["reason"].startswith("WARNING") and result.report["plan"]["exit_current"]
     m = compare_images(result.image, data["image"].astype(np.float64), pixel_geometry(scene),
                        coverage=data["coverage"].astype(np.float64))
-    assert np.all(np.array(m["mare_lit"]) <= (0.232, 0.235, 0.229)), m["mare_lit"]
-    assert np.all(np.array(m["mare_band"]) <= (0.168, 0.195, 0.242)), m["mare_band"]
-    assert np.all(np.array(m["sum_ratio"]) >= (0.84, 0.87, 0.90)), m["sum_ratio"]
+    assert np.all(np.array(m["mare_lit"]) <= (0.171, 0.163, 0.202)), m["mare_lit"]
+    assert np.all(np.array(m["mare_band"]) <= (0.119, 0.141, 0.212)), m["mare_band"]
+    assert np.all(np.array(m["sum_ratio"]) >= (0.88, 0.91, 0.91)), m["sum_ratio"]
 
 
 def test_chicken1_lit_from_behind_and_its_far_dark_side():
     """chicken1 on the 20 mm sphere (3.3 ``l_u`` in red) with the back-lit scene's light (the benchmark's reference,
     benchmarks/references/materials; 16384 spp, noise 3.2 / 2.1 / 1.7%). The far dark side (cos -1 to -0.5 to the
     light) is lit by light that crossed the sphere, which converges near the light's antipode: the curvature
-    correction's antipode bin (jaxsss.render.curvature_correction.fit_curvature_correction) is what lights it. Achieved
-    (2026-11-29): mare_lit 0.176 / 0.308 / 0.283, band 0.034 / 0.073 / 0.136, sums 0.881 / 0.826 / 0.855; the far dark
-    side's bias -0.12 in red (-0.28 with the antipode's bin dropped and six radii: mare_lit 0.248 in red, sums 0.826).
+    correction's antipode bin (jaxsss.render.curvature_correction.fit_curvature_correction) is what lights it, and the
+    oblique beams' light ahead of their entry (jaxsss.render.oblique_azimuth). Achieved (2026-11-29, stop 49): mare_lit
+    0.162 / 0.229 / 0.255, band 0.066 / 0.041 / 0.127, sums 0.914 / 0.877 / 0.866; the far dark side's bias -0.09 in
+    red. Without the azimuth: 0.176 / 0.308 / 0.283, band 0.034 / 0.073 / 0.136, the far side -0.12; with the antipode's
+    bin dropped and six radii as well (stop 48): 0.248 / 0.305 / 0.283, sums 0.826 / 0.827 / 0.855, the far side -0.28.
     Green and blue miss the goals (the dark side's exitance, docs/path_tracer.md). Bounds: the achieved level + 10%."""
     directory = Path(__file__).parents[2] / "benchmarks" / "references" / "materials"
     scene = load_scene(directory / "chicken1_sphere_backlit.toml")
@@ -290,20 +294,22 @@ def test_chicken1_lit_from_behind_and_its_far_dark_side():
     assert result.report["plan"]["exit_current"]
     ref, coverage, pixels = data["image"].astype(np.float64), data["coverage"].astype(np.float64), pixel_geometry(scene)
     m = compare_images(result.image, ref, pixels, coverage=coverage)
-    assert np.all(np.array(m["mare_lit"]) <= (0.194, 0.339, 0.311)), m["mare_lit"]
-    assert np.all(np.array(m["mare_band"]) <= (0.037, 0.080, 0.150)), m["mare_band"]
-    assert np.all(np.array(m["sum_ratio"]) >= (0.86, 0.80, 0.83)), m["sum_ratio"]
+    assert np.all(np.array(m["mare_lit"]) <= (0.178, 0.252, 0.281)), m["mare_lit"]
+    assert np.all(np.array(m["mare_band"]) <= (0.073, 0.045, 0.140)), m["mare_band"]
+    assert np.all(np.array(m["sum_ratio"]) >= (0.90, 0.86, 0.85)), m["sum_ratio"]
     far = error_by_cos(result.image, ref, pixels, coverage=coverage, edges=np.array([-1.0, -0.5]))[0]
-    assert far["n"] > 1000 and -0.16 < far["bias"][0] < 0.0, far
+    assert far["n"] > 1000 and -0.13 < far["bias"][0] < 0.0, far
 
 
 def test_skin1_under_a_key_and_a_rim_light_against_its_path_traced_reference():
     """The skin1 sphere under a key light on the camera's side and the back-lit scene's light behind it (the benchmark's
     reference, benchmarks/references/materials; 16384 spp, noise 2.1 / 1.2 / 1.3%): the plan sums the rim light's part
-    with the exit's current and the curvature's far field corrected, and the key light's apart without them. Achieved
-    (2026-11-29): mare_lit 0.038 / 0.029 / 0.028, band 0.067 / 0.068 / 0.079, sums 0.991 / 0.998 / 0.997 (both terms
-    left out, stop 47's plan for such a scene: 0.063 / 0.038 / 0.032, band 0.118 / 0.105 / 0.103; both on every light:
-    0.049 / 0.034 / 0.030). Bounds: the achieved level + 10%, the sums within the goal's 3%."""
+    with the exit's current, the curvature's far field corrected and the oblique beams' light ahead of their entry,
+    and the key light's apart without them. Achieved (2026-11-29, stop 49): mare_lit 0.034 / 0.026 / 0.027, band 0.057
+    / 0.056 / 0.074, sums 0.993 / 0.999 / 0.997 (stop 48, without the azimuth: 0.038 / 0.029 / 0.028, band 0.067 /
+    0.068 / 0.079; both terms left out, stop 47's plan for such a scene: 0.063 / 0.038 / 0.032, band 0.118 / 0.105 /
+    0.103; both on every light: 0.049 / 0.034 / 0.030). Bounds: the achieved level + 10%, the sums within the goal's
+    3%."""
     directory = Path(__file__).parents[2] / "benchmarks" / "references" / "materials"
     scene = load_scene(directory / "skin1_sphere_keyrim.toml")
     data = np.load(directory / "skin1_sphere_keyrim.npz")
@@ -311,6 +317,6 @@ def test_skin1_under_a_key_and_a_rim_light_against_its_path_traced_reference():
     assert tuple(result.report["plan"]["current_lights"]) == (False, True)
     m = compare_images(result.image, data["image"].astype(np.float64), pixel_geometry(scene),
                        coverage=data["coverage"].astype(np.float64))
-    assert np.all(np.array(m["mare_lit"]) <= (0.042, 0.032, 0.031)), m["mare_lit"]
-    assert np.all(np.array(m["mare_band"]) <= (0.074, 0.075, 0.087)), m["mare_band"]
+    assert np.all(np.array(m["mare_lit"]) <= (0.038, 0.029, 0.030)), m["mare_lit"]
+    assert np.all(np.array(m["mare_band"]) <= (0.063, 0.062, 0.082)), m["mare_band"]
     assert np.all(np.abs(np.array(m["sum_ratio"]) - 1.0) <= 0.03), m["sum_ratio"]
