@@ -2,6 +2,8 @@
 against a fresh walk, shapes, bad and extreme input, invariants (the normal node untouched, the kernel's mean kept, a
 positive factor) and autodiff."""
 
+import functools
+
 import jax.numpy as jnp
 import numpy as np
 import pytest
@@ -16,6 +18,7 @@ from tests.gradcheck import assert_grad_matches_fd
 MUS, SOURCES = white_tables(0.0, 1.0, True)
 
 
+@functools.lru_cache(maxsize=None)
 def _kernel(albedo: float, azimuth: bool):
     medium = Medium(jnp.array([1.0 - albedo]), jnp.array([albedo]), 1.0)
     return white_kernel(medium, SOURCES, MUS, shift=True, curvature=True, first_order=True, curvature_transport=True,
