@@ -187,15 +187,6 @@ def azimuth_rows(mus: tuple, albedo):
     return tuple(out)
 
 
-def _interval(v, nodes):
-    """``(i, t)``: the interval of the sorted ``nodes`` (concrete) holding ``v`` and the position in it, clipped to the
-    ends (held beyond them); ``t`` is differentiable in ``v``."""
-    nodes = jnp.asarray(np.asarray(nodes, dtype=np.float64))
-    i = jnp.clip(jnp.searchsorted(nodes, v, side="right") - 1, 0, nodes.shape[0] - 2)
-    lo, hi = nodes[i], nodes[i + 1]
-    return i, jnp.clip((v - lo) / (hi - lo), 0.0, 1.0)
-
-
 def azimuth_factor(b_rows, g_rows, kappa_lu, d_lu, cos_phi):
     """``(P, K, C)``: ``G (1 + B cos phi)`` at the pairs' curvature ``kappa_lu`` and chord ``d_lu`` (``(P, 1, 1)`` or
     ``(P, 1, C)``, in transport lengths) and azimuth ``cos_phi`` ``(P, K, C)`` from each node's travel; ``b_rows`` and
@@ -203,11 +194,12 @@ def azimuth_factor(b_rows, g_rows, kappa_lu, d_lu, cos_phi):
     nodes, held beyond them (one gather of the cell's corners per pair: interpolating every curvature node along the
     chord first took as long as the rest of the pair); differentiable in every argument."""
     from jaxsss.render.curvature_correction import CORRECTION_D, CORRECTION_KAPPA
+    from jaxsss.render.passage import node_interval
 
     n_k, n_c, n_kappa, n_d = b_rows.shape
     shape = cos_phi.shape
-    i, t = _interval(jnp.broadcast_to(d_lu, shape), CORRECTION_D)
-    j, w = _interval(jnp.broadcast_to(kappa_lu, shape), CORRECTION_KAPPA)
+    i, t = node_interval(jnp.broadcast_to(d_lu, shape), CORRECTION_D)
+    j, w = node_interval(jnp.broadcast_to(kappa_lu, shape), CORRECTION_KAPPA)
     k = jnp.arange(n_k, dtype=jnp.int32)[None, :, None]
     c = jnp.arange(n_c, dtype=jnp.int32)[None, None, :]
     # (G, B) at the cell's four corners, from the flattened (K, C, Nk, D, 2) table.
