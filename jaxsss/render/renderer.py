@@ -481,7 +481,8 @@ def _image(prepared: Prepared, medium: Medium):
 
 @render_jit
 def _first_order_image(prepared: Prepared, medium: Medium):
-    return prepared.image_from_radiance(first_order_radiance(medium, prepared.first_order))
+    radiance = first_order_radiance(medium, prepared.first_order)
+    return prepared.image_from_radiance(prepared.seen_through(medium, radiance))
 
 
 def _registered(method: str):

@@ -9,6 +9,8 @@ so this module is the renderer's shared interface for it:
   scattering or specular need it) and the ``constant`` image of everything that is not the translucent object;
 - :func:`edge_pixels` finds the pixels whose centre misrepresents them (creases, and terminators or shadow edges on
   a turning surface): :func:`shading_points` casts the camera's ``edge_spp`` rays there instead of ``spp``;
+- :func:`see_through` continues the camera's rays through thin walls at ``eta = 1`` (the part of the object behind a
+  wall is seen through it);
 - :func:`point_shading` is the same for given surface points (validation against Monte Carlo);
 - :func:`constant_image` is the background and the grey Lambertian occluders;
 - :class:`ShadedPoints` is the JAX side (an ``equinox.Module`` every method's state extends): exit radiance from an
@@ -30,13 +32,14 @@ from jaxsss._config import to_device
 from jaxsss.medium import Medium
 from jaxsss.render import radiance as rad
 from jaxsss.render.bssrdf import exit_model_for, exit_radiance_nodes
-from jaxsss.render.exit_direction import azimuth_harmonics
 from jaxsss.render.camera import camera_rays
+from jaxsss.render.exit_direction import azimuth_harmonics
 from jaxsss.render.lights import light_field
 from jaxsss.render.rays import OBJECT_TRANSLUCENT, Hits
 
-__all__ = ["CREASE_DEG", "EDGE_CONTRAST", "EDGE_TURN_DEG", "ShadedPoints", "ShadingPoints", "constant_image",
-           "edge_pixels", "exit_azimuth", "face_the_eye", "image_stats", "point_shading", "shaded_fields",
+__all__ = ["CREASE_DEG", "EDGE_CONTRAST", "EDGE_TURN_DEG", "VIEW_REENTRIES", "ShadedPoints", "ShadingPoints",
+           "constant_image", "edge_pixels", "exit_azimuth", "face_the_eye", "image_stats", "point_shading",
+           "see_through", "shaded_fields",
            "shading_points"]
 
 
@@ -56,13 +59,19 @@ class ShadingPoints(NamedTuple):
     weight: np.ndarray  # (Q,) each point's weight in its pixel's mean (1 / that pixel's rays)
     # The first order's march (jaxsss.render.first_order.FirstOrderPaths), or None
     first_order: Any = None
+    # (Q,) mm: the object's chord in front of each point along its camera ray (see_through), or None (all 0)
+    through: np.ndarray | None = None
+    # (Q,) mm: the view ray's chord inside where the object is seen through it behind (see_through), 0 elsewhere
+    veil: np.ndarray | None = None
 
     def subset(self, idx: np.ndarray) -> ShadingPoints:
         """The points ``idx`` only (the image part is unchanged)."""
         light = None if self.light is None else type(self.light)(*(a[idx] for a in self.light))
         march = None if self.first_order is None else jax.tree.map(lambda a: a[idx], self.first_order)
+        through, veil = (None if a is None else a[idx] for a in (self.through, self.veil))
         return self._replace(pos=self.pos[idx], normal=self.normal[idx], to_eye=self.to_eye[idx],
-                             pixel=self.pixel[idx], light=light, weight=self.weight[idx], first_order=march)
+                             pixel=self.pixel[idx], light=light, weight=self.weight[idx], first_order=march,
+                             through=through, veil=veil)
 
 
 def face_the_eye(normal: np.ndarray, to_eye: np.ndarray) -> np.ndarray:
@@ -206,6 +215,19 @@ def shading_points(scene, geometry, plan, resolution, pixel_mask, n_channels: in
     q_pos = hits.position[on_obj]
     to_eye = -rays.directions[ray_idx[on_obj]]
     q_normal = face_the_eye(geometry.shading_normals(hits.face[on_obj], q_pos), to_eye)
+    q_pixel, q_weight = rays.pixel[ray_idx[on_obj]], rays.weight[ray_idx[on_obj]]
+    through = veil = None
+    if plan.first_order:
+        # eta = 1: the camera's rays run straight on through thin walls (see_through).
+        parent, chord, more = see_through(geometry, q_pos, q_normal, to_eye)
+        if len(parent):
+            veil = np.zeros(len(q_pos) + len(parent))
+            veil[parent] = chord
+            through = np.concatenate([np.zeros(len(q_pos)), more.through])
+            q_pos, q_normal, to_eye = (np.concatenate([a, b]) for a, b in
+                                       ((q_pos, more.pos), (q_normal, more.normal), (to_eye, more.to_eye)))
+            q_pixel, q_weight = np.concatenate([q_pixel, q_pixel[more.root]]), np.concatenate(
+                [q_weight, q_weight[more.root]])
     q_light = None
     if plan.single_scattering or plan.specular:
         q_light = light_field(scene.lights, q_pos, q_normal, geometry if plan.shadows else None)
@@ -214,8 +236,81 @@ def shading_points(scene, geometry, plan, resolution, pixel_mask, n_channels: in
         from jaxsss.render.first_order import first_order_paths
 
         march = first_order_paths(scene, geometry, q_pos, q_normal, to_eye, n_channels, seed=scene.render.seed)
-    return ShadingPoints(q_pos, q_normal, to_eye, rays.pixel[ray_idx[on_obj]], q_light, constant, (h, w), rays.spp,
-                         len(rays.pixel), rays.weight[ray_idx[on_obj]], march)
+    return ShadingPoints(q_pos, q_normal, to_eye, q_pixel, q_light, constant, (h, w), rays.spp, len(rays.pixel),
+                         q_weight, march, through, veil)
+
+
+VIEW_REENTRIES = 2
+"""How many times :func:`see_through` follows a camera ray back into the object."""
+
+
+class SeenThrough(NamedTuple):
+    """The points :func:`see_through` adds behind thin walls (``M`` of them)."""
+
+    pos: np.ndarray  # (M, 3) mm: where the camera's ray enters the object again
+    normal: np.ndarray  # (M, 3) unit, facing the eye
+    to_eye: np.ndarray  # (M, 3) unit: the ray's, reversed
+    through: np.ndarray  # (M,) mm: the object's chords in front of the point along the ray, summed
+    root: np.ndarray  # (M,) index of the first hit (of the given points) on the same ray
+
+
+def see_through(geometry, pos: np.ndarray, normal: np.ndarray, to_eye: np.ndarray,
+                reentries: int = VIEW_REENTRIES) -> tuple[np.ndarray, np.ndarray, SeenThrough]:
+    """Follow camera rays on through the object where the boundary does not bend them (``eta = 1``).
+
+    Past its first hit a ray runs inside for a chord ``c`` and leaves. Where it then meets the object again (a thin
+    wall in front of more of it: the teapot's rim before its lid, 1.3 mm thick where ketchup's red travels 4 mm
+    between interactions), the path tracer sees the part behind through the wall, attenuated by ``exp(-sigma_t
+    c)``, and the wall's own diffuse light only from its chord: with a uniform source along it, ``1 - exp(-sigma_t
+    c)`` of a deep wall's (:meth:`ShadedPoints.radiance_from_diffusion`; the first order is marched along the chord
+    as it is). Rendered as one point, the teapot's rim row was 0.3-0.8 of Mitsuba's in every channel. A ray that
+    leaves towards anything else (the background, an occluder) is left as it was: the exit's curvature model
+    (:mod:`jaxsss.render.exit_curvature`) already holds the short chords of a convex object's limb.
+
+    Args:
+        geometry: the scene's :class:`~jaxsss.render.rays.SceneGeometry` (translucent mesh first).
+        pos, normal, to_eye: ``(Q, 3)`` the first hits (mm), their normals facing the eye, unit directions to it.
+        reentries: how many times a ray is followed back in (:data:`VIEW_REENTRIES`).
+
+    Returns:
+        ``(parent, chord, more)``: ``parent`` ``(M,)`` the index, among the given points and then ``more``'s, of the
+        point in front of each added one, ``chord`` ``(M,)`` mm its chord inside, and ``more`` the added points
+        (:class:`SeenThrough`).
+    """
+    parents, chords, parts = [], [], []
+    n = len(pos)
+    at = np.arange(n)  # the current points' indices among the given points and the added ones
+    root, through = np.arange(n), np.zeros(n)
+    cur_pos, cur_normal, cur_eye = (np.asarray(a, dtype=np.float64) for a in (pos, normal, to_eye))
+    for _ in range(reentries):
+        if not len(at):
+            break
+        inward = -cur_eye
+        out = geometry.first_hit(cur_pos - geometry.offset * cur_normal, inward)
+        inside = out.hit & (out.obj == OBJECT_TRANSLUCENT)
+        chord = np.where(inside, out.t + geometry.offset, 0.0)
+        left = np.flatnonzero(inside)
+        on = geometry.first_hit(out.position[left] + geometry.offset * inward[left], inward[left])
+        again = on.hit & (on.obj == OBJECT_TRANSLUCENT)
+        back = left[again]
+        if not len(back):
+            break
+        new_pos = on.position[again]
+        new_eye = cur_eye[back]
+        new_normal = face_the_eye(geometry.shading_normals(on.face[again], new_pos), new_eye)
+        new_through = through[back] + chord[back]
+        parents.append(at[back])
+        chords.append(chord[back])
+        parts.append(SeenThrough(new_pos, new_normal, new_eye, new_through, root[back]))
+        start = n + sum(len(p.pos) for p in parts[:-1])
+        at, root, through = start + np.arange(len(back)), root[back], new_through
+        cur_pos, cur_normal, cur_eye = new_pos, new_normal, new_eye
+    if not parts:
+        empty = np.zeros((0, 3))
+        return (np.zeros(0, dtype=np.int64), np.zeros(0),
+                SeenThrough(empty, empty, empty, np.zeros(0), np.zeros(0, dtype=np.int64)))
+    more = SeenThrough(*(np.concatenate(a) for a in zip(*parts)))
+    return np.concatenate(parents), np.concatenate(chords), more
 
 
 def point_shading(points, n_channels: int, owner: str = "prepare") -> ShadingPoints:
@@ -250,6 +345,10 @@ class ShadedPoints(eqx.Module):
     spp: int = eqx.field(static=True)
     single_scattering: bool = eqx.field(static=True)
     specular_roughness: float | None = eqx.field(static=True)
+    # (Q,) mm: the object's chord in front of each point along its camera ray (see_through), or None (all 0)
+    query_through: jax.Array | None = eqx.field(default=None, kw_only=True)
+    # (Q,) mm: the view's chord inside where more of the object is seen through it (see_through; 0: none), or None
+    query_veil: jax.Array | None = eqx.field(default=None, kw_only=True)
 
     @property
     def n_queries(self) -> int:
@@ -284,6 +383,12 @@ class ShadedPoints(eqx.Module):
     def radiance_from_diffusion(self, medium: Medium, diffusion):
         """Radiance towards the eye at the shaded points, ``(Q, C)`` W/(mm^2 sr): the diffusion radiance
         ``diffusion`` ``(Q, C)`` plus the optional first-order, single-scattering and specular terms."""
+        if self.query_veil is not None:
+            # A thin wall's diffuse light from its chord c only (see_through): 1 - exp(-sigma_t c) of a deep one's.
+            c = self.query_veil[:, None]
+            veiled = c > 0.0
+            wall = -jnp.expm1(-medium.sigma_t_prime * jnp.where(veiled, c, 1.0))
+            diffusion = jnp.where(veiled, wall, 1.0) * diffusion
         out = diffusion
         if self.first_order is not None:
             from jaxsss.render.first_order import first_order_radiance
@@ -295,7 +400,15 @@ class ShadedPoints(eqx.Module):
         if self.specular_roughness is not None:
             out = out + rad.specular_ggx(medium, self.query_normal, self.to_eye, self.query_to_light,
                                          self.query_irradiance, self.specular_roughness)
-        return out
+        return self.seen_through(medium, out)
+
+    def seen_through(self, medium: Medium, radiance):
+        """``radiance`` ``(Q, C)`` at the shaded points as the eye receives it: attenuated by ``exp(-sigma_t c)``
+        over the object's chords in front of the points seen through thin walls (:func:`see_through`)."""
+        if self.query_through is None:
+            return radiance
+        # L_eye = exp(-sigma_t c_front) L.
+        return jnp.exp(-medium.sigma_t_prime * self.query_through[:, None]) * radiance
 
     def image_from_radiance(self, radiance):
         """``(H, W, C)`` linear image: the mean over each pixel's rays plus the constant part."""
@@ -318,6 +431,8 @@ def shaded_fields(scene, plan, shading: ShadingPoints) -> dict[str, Any]:
         "exit_azimuth": exit_azimuth(scene, plan, shading),
         "constant": to_device(shading.constant),
         "first_order": shading.first_order,
+        "query_through": None if shading.through is None else to_device(shading.through),
+        "query_veil": None if shading.veil is None else to_device(shading.veil),
         "shape": shading.shape,
         "spp": shading.spp,
         "single_scattering": plan.single_scattering,
