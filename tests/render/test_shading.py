@@ -135,7 +135,7 @@ def _wall_and_block(wall=1.0, gap=2.0):
     block.apply_translation((0.0, 15.0, 0.0))
     scene = parse_scene({
         "mesh": {"builtin": "box", "extents": [40.0, 30.0, 40.0]},
-        "material": {"sigma_a": 0.05, "sigma_s_prime": 0.45, "eta": 1.0},
+        "material": {"sigma_a": 0.06, "sigma_s_prime": 0.45, "eta": 1.0},
         "light": [{"type": "directional", "direction": [0.0, 1.0, 0.0], "intensity": 1.0}],
         "camera": {"position": [0.0, -2000.0, 0.0], "look_at": [0.0, 0.0, 0.0], "fov_deg": 0.6,
                    "resolution": [8, 8]},
@@ -173,14 +173,14 @@ def test_the_first_order_through_a_thin_wall_is_the_half_spaces():
         assert int(np.sum(np.asarray(prepared.query_through) > 0)) == prepared.n_queries // 2
         medium = scene.material.medium
         first = np.asarray(prepared.first_order_image(medium))[2:6, 2:6, 0]
-        np.testing.assert_allclose(first, 0.9 / (8.0 * np.pi), rtol=2e-3)
+        np.testing.assert_allclose(first, 0.45 / 0.51 / (8.0 * np.pi), rtol=2e-3)
 
 
 def test_the_light_through_a_thin_wall_is_differentiable():
-    """d / d(sigma_a, sigma_s') of the radiance the eye gets through the wall (the wall's veil on its diffuse light,
-    the first order, the transmission to the part behind) against central differences. (The whole image of this
-    scene is not checked: its white kernel's gradient in sigma_s' is 5% off central differences with or without the
-    wall's see-through, from the thin wall's own sums; docs/path_tracer.md.)"""
+    """d / d(sigma_a, sigma_s') of the radiance the eye gets from the shaded points (the wall's veil on its diffuse
+    light, the marched first order, the transmission to the block behind) against central differences. The whole
+    image's gradient on this scene also matches (1e-9, off the cut beam's table nodes: at albedo 0.9 exactly central
+    differences average two slopes), but its compilation takes 20-40 s; the sums' gradients are checked elsewhere."""
     scene = _wall_and_block(wall=1.0)
     prepared = prepare(scene, method="direct", plan=make_plan(scene, method="direct", bssrdf="auto"))[0]
     diffusion = jnp.linspace(0.5, 1.5, prepared.n_queries)[:, None] * jnp.ones(3)
@@ -188,4 +188,4 @@ def test_the_light_through_a_thin_wall_is_differentiable():
     def f(x):
         return jnp.sum(prepared.radiance_from_diffusion(Medium(jnp.full(3, x[0]), jnp.full(3, x[1]), 1.0), diffusion))
 
-    assert_grad_matches_fd(f, np.array([0.05, 0.45]), rtol=1e-6)
+    assert_grad_matches_fd(f, np.array([0.06, 0.45]), rtol=1e-6)
