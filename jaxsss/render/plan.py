@@ -12,6 +12,9 @@ force a term ``"on"`` or ``"off"``; ``"auto"`` lets the plan decide:
 - **BSSRDF** (when the caller asks, ``bssrdf=``; the hierarchical and direct methods do): the transport-accurate white
   Monte Carlo family's profiles with their incidence-angle dependence for ``g < 0.5`` and ``eta`` in [1, 1.6], or the
   dipole (:func:`~jaxsss.render.bssrdf.choose_bssrdf`);
+- **see-through**: at an index-matched boundary (``eta = 1``) with the white kernels, a camera ray that leaves a
+  non-convex object and meets it again is followed (:func:`jaxsss.render.shading.see_through`); a convex object
+  has nothing behind its walls;
 - **single scattering**: left out when the BSSRDF already holds it (the white profiles hold every order) or when its
   estimated share of the exitance (:func:`~jaxsss.render.radiance.single_scattering_share`) is below the tolerance;
 - **cut-off radius**: pairs farther than ``ln(1/tol) / sigma_tr`` are dropped when that radius is smaller than the
@@ -79,6 +82,9 @@ class ScenePlan(NamedTuple):
     current_lights: tuple = ()
     """Per light of the scene, whether its light is summed with the exit's current (:attr:`exit_current`: any of
     them). Lights on both sides of the object are summed apart, each side with its own kernel."""
+    see_through: bool = False
+    """Camera rays are followed on through thin walls into the object behind (:func:`jaxsss.render.shading.
+    see_through`; ``eta = 1``, the white kernels, a non-convex mesh)."""
 
     def explain(self) -> str:
         """The plan as text, one line per decision."""
@@ -188,6 +194,10 @@ def make_plan(scene, *, method: str | None = None, eps: float | None = None, cut
     first_order, why = _first_order(scene, kernel, indirect or self_bounce)
     if kernel != "dipole":
         items.append(PlanItem("first order in the object's geometry", first_order, why))
+        see_through, why = _see_through(scene)
+        items.append(PlanItem("see-through", see_through, why))
+    else:
+        see_through = False
     current_lights = ()
     if bssrdf is not None:
         azimuth, current_lights = _exit_azimuth(scene, first_order)
@@ -248,7 +258,7 @@ def make_plan(scene, *, method: str | None = None, eps: float | None = None, cut
         items.append(PlanItem("occluders", True, f"{len(scene.occluders)} opaque Lambertian object(s) shaded "
                                                  "directly"))
     return ScenePlan(method, eps, n_samples, shadows, indirect, single, specular, r_cut, shared, tuple(items),
-                     kernel, self_bounce, first_order, any(current_lights), current_lights)
+                     kernel, self_bounce, first_order, any(current_lights), current_lights, see_through)
 
 
 EXIT_AZIMUTH_BEHIND_DEG = 90.0
@@ -314,6 +324,18 @@ def _exit_azimuth(scene, first_order: bool) -> tuple[PlanItem | None, tuple]:
                     f"ahead of the entry (jaxsss.render.oblique_azimuth) for the lights behind{apart}; still 10-26% "
                     "per pixel off on back-lit spheres, 5-30% too dark past the terminator (docs/path_tracer.md)"), \
         tuple(behind)
+
+
+def _see_through(scene) -> tuple[bool, str]:
+    """Whether the camera's rays are followed through thin walls (:func:`jaxsss.render.shading.see_through`), and
+    why."""
+    eta = float(np.max(np.asarray(scene.material.medium.eta)))
+    if eta != 1.0:
+        return False, f"eta = {eta:g}: the boundary bends the camera's rays (followed only at eta = 1)"
+    if bool(scene.mesh.is_convex):
+        return False, "convex mesh: a camera ray that leaves it never meets it again"
+    return True, ("a camera ray that leaves a thin wall and meets the object again sees the part behind through it, "
+                  "exp(-sigma_t' c) (eta = 1); the wall keeps 1 - exp(-sigma_t' c) of its diffuse light")
 
 
 def _first_order(scene, kernel: str, indirect: bool) -> tuple[bool, str]:

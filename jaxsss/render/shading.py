@@ -217,7 +217,7 @@ def shading_points(scene, geometry, plan, resolution, pixel_mask, n_channels: in
     q_normal = face_the_eye(geometry.shading_normals(hits.face[on_obj], q_pos), to_eye)
     q_pixel, q_weight = rays.pixel[ray_idx[on_obj]], rays.weight[ray_idx[on_obj]]
     through = veil = None
-    if plan.first_order:
+    if plan.see_through:
         # eta = 1: the camera's rays run straight on through thin walls (see_through).
         parent, chord, more = see_through(geometry, q_pos, q_normal, to_eye)
         if len(parent):
@@ -262,8 +262,9 @@ def see_through(geometry, pos: np.ndarray, normal: np.ndarray, to_eye: np.ndarra
     wall in front of more of it: the teapot's rim before its lid, 1.3 mm thick where ketchup's red travels 4 mm
     between interactions), the path tracer sees the part behind through the wall, attenuated by ``exp(-sigma_t
     c)``, and the wall's own diffuse light only from its chord: with a uniform source along it, ``1 - exp(-sigma_t
-    c)`` of a deep wall's (:meth:`ShadedPoints.radiance_from_diffusion`; the first order is marched along the chord
-    as it is). Rendered as one point, the teapot's rim row was 0.3-0.8 of Mitsuba's in every channel. A ray that
+    c)`` of a deep wall's (:meth:`ShadedPoints.radiance_from_diffusion`; a marched first order is marched along the
+    chord as it is; ``sigma_t'`` stands for ``sigma_t`` where ``g > 0``, forward scattering's similarity). The scene
+    plan turns it on at ``eta = 1`` with the white kernels and a non-convex mesh (its ``see-through`` line). Rendered as one point, the teapot's rim row was 0.3-0.8 of Mitsuba's in every channel. A ray that
     leaves towards anything else (the background, an occluder) is left as it was: the exit's curvature model
     (:mod:`jaxsss.render.exit_curvature`) already holds the short chords of a convex object's limb.
 
@@ -384,7 +385,7 @@ class ShadedPoints(eqx.Module):
         """Radiance towards the eye at the shaded points, ``(Q, C)`` W/(mm^2 sr): the diffusion radiance
         ``diffusion`` ``(Q, C)`` plus the optional first-order, single-scattering and specular terms."""
         if self.query_veil is not None:
-            # A thin wall's diffuse light from its chord c only (see_through): 1 - exp(-sigma_t c) of a deep one's.
+            # A thin wall's diffuse light from its chord c only (see_through): 1 - exp(-sigma_t' c) of a deep one's.
             c = self.query_veil[:, None]
             veiled = c > 0.0
             wall = -jnp.expm1(-medium.sigma_t_prime * jnp.where(veiled, c, 1.0))
@@ -403,11 +404,11 @@ class ShadedPoints(eqx.Module):
         return self.seen_through(medium, out)
 
     def seen_through(self, medium: Medium, radiance):
-        """``radiance`` ``(Q, C)`` at the shaded points as the eye receives it: attenuated by ``exp(-sigma_t c)``
+        """``radiance`` ``(Q, C)`` at the shaded points as the eye receives it: attenuated by ``exp(-sigma_t' c)``
         over the object's chords in front of the points seen through thin walls (:func:`see_through`)."""
         if self.query_through is None:
             return radiance
-        # L_eye = exp(-sigma_t c_front) L.
+        # L_eye = exp(-sigma_t' c_front) L.
         return jnp.exp(-medium.sigma_t_prime * self.query_through[:, None]) * radiance
 
     def image_from_radiance(self, radiance):

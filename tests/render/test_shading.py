@@ -189,3 +189,31 @@ def test_the_light_through_a_thin_wall_is_differentiable():
         return jnp.sum(prepared.radiance_from_diffusion(Medium(jnp.full(3, x[0]), jnp.full(3, x[1]), 1.0), diffusion))
 
     assert_grad_matches_fd(f, np.array([0.06, 0.45]), rtol=1e-6)
+
+
+def test_the_plan_sees_through_non_convex_objects_at_eta_1():
+    """On for the wall and block and the teapot at eta = 1 (with g = 0.9 too: the ray is not bent); off for a convex
+    sphere, at eta = 1.4, and for the dipole (its line is not there); each with its reason."""
+    from jaxsss.render.plan import make_plan as plan_for
+
+    def line(scene, **kw):
+        plan = plan_for(scene, **kw)
+        items = [i for i in plan.items if i.name == "see-through"]
+        assert len(items) == (0 if plan.bssrdf == "dipole" else 1)
+        assert not items or items[0].included == plan.see_through
+        return plan.see_through, items[0].reason if items else ""
+
+    wall = _wall_and_block()
+    assert line(wall, bssrdf="auto")[0]
+    teapot = parse_scene({"mesh": {"builtin": "teapot", "size": 40.0},
+                          "material": {"sigma_a": 0.01, "sigma_s_prime": 1.0, "eta": 1.0, "g": 0.9},
+                          "light": [{"type": "point", "position": [0.0, -100.0, 80.0], "intensity": 1.0e4}],
+                          "camera": {"position": [0.0, -150.0, 40.0], "look_at": [0.0, 0.0, 15.0],
+                                     "resolution": [8, 8]}})
+    assert line(teapot, bssrdf="auto")[0]
+    on, why = line(_sphere(), bssrdf="auto")
+    assert not on and "convex" in why
+    glass = scene_with(wall, material=dataclasses.replace(wall.material, medium=Medium(0.06, 0.45, 1.4)))
+    on, why = line(glass, bssrdf="auto")
+    assert not on and "eta = 1.4" in why
+    assert line(wall, bssrdf="dipole") == (False, "")
