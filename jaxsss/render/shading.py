@@ -37,10 +37,9 @@ from jaxsss.render.exit_direction import azimuth_harmonics
 from jaxsss.render.lights import light_field
 from jaxsss.render.rays import OBJECT_TRANSLUCENT, Hits
 
-__all__ = ["CREASE_DEG", "EDGE_CONTRAST", "EDGE_TURN_DEG", "VIEW_REENTRIES", "ShadedPoints", "ShadingPoints",
-           "constant_image", "edge_pixels", "exit_azimuth", "face_the_eye", "image_stats", "point_shading",
-           "see_through", "shaded_fields",
-           "shading_points"]
+__all__ = ["CREASE_DEG", "EDGE_CONTRAST", "EDGE_TURN_DEG", "VIEW_REENTRIES", "SeenThrough", "ShadedPoints",
+           "ShadingPoints", "constant_image", "edge_pixels", "exit_azimuth", "face_the_eye", "image_stats",
+           "point_shading", "see_through", "shaded_fields", "shading_points"]
 
 
 class ShadingPoints(NamedTuple):
@@ -263,10 +262,11 @@ def see_through(geometry, pos: np.ndarray, normal: np.ndarray, to_eye: np.ndarra
     between interactions), the path tracer sees the part behind through the wall, attenuated by ``exp(-sigma_t
     c)``, and the wall's own diffuse light only from its chord: with a uniform source along it, ``1 - exp(-sigma_t
     c)`` of a deep wall's (:meth:`ShadedPoints.radiance_from_diffusion`; a marched first order is marched along the
-    chord as it is; ``sigma_t'`` stands for ``sigma_t`` where ``g > 0``, forward scattering's similarity). The scene
-    plan turns it on at ``eta = 1`` with the white kernels and a non-convex mesh (its ``see-through`` line). Rendered as one point, the teapot's rim row was 0.3-0.8 of Mitsuba's in every channel. A ray that
-    leaves towards anything else (the background, an occluder) is left as it was: the exit's curvature model
-    (:mod:`jaxsss.render.exit_curvature`) already holds the short chords of a convex object's limb.
+    chord as it is; ``sigma_t'`` stands for ``sigma_t`` where ``g > 0``, forward scattering's similarity). Rendered
+    as one point, the teapot's rim row was 0.3-0.8 of Mitsuba's in every channel. A ray that leaves towards anything
+    else (the background, an occluder) is left as it was: the exit's curvature model
+    (:mod:`jaxsss.render.exit_curvature`) already holds the short chords of a convex object's limb. The scene plan
+    turns it on at ``eta = 1`` with the white kernels and a non-convex mesh (its ``see-through`` line).
 
     Args:
         geometry: the scene's :class:`~jaxsss.render.rays.SceneGeometry` (translucent mesh first).
