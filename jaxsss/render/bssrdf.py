@@ -21,9 +21,10 @@ The hierarchical and direct sums (:mod:`jaxsss.render.radiance`) add ``Phi_p R(|
   (:mod:`jaxsss.render.make_oblique_tables`). Grazing light enters shallower and more of it comes back (at albedo
   0.96 and ``eta = 1`` about 1.5x as much per incident photon at ``mu = 0.1`` as at normal incidence): the dipole,
   which treats every light as if it fell along the normal, is 28-38% too dark at the terminator. At an index-matched
-  boundary the light of each column is scaled so that the nodes' linear mix reflects Chandrasekhar's exact
-  directional albedo at its cosine (:func:`albedo_correction`: the albedo is convex in ``mu``, so the mix alone was
-  0.4-1.7% too bright for skin1 under a point light, up to 4% at cos 0.3). The forward shift of
+  boundary the light of each column is scaled so that the nodes' linear mix reflects the exact directional albedo
+  at its cosine (:func:`albedo_correction`; Chandrasekhar's for ``g = 0``, the HG medium's by adding-doubling for
+  ``g > 0``, :mod:`jaxsss.render.anisotropic_albedo`: the albedo is convex in ``mu``, so the mix alone was 0.4-1.7%
+  too bright for skin1 under a point light, up to 4% at cos 0.3). The forward shift of
   an oblique profile (towards where the light travels) is averaged out: the kernel stays radial, so the hierarchical
   sum and its octree are unchanged. Diffuse indirect light enters with the cosine-weighted hemispherical average of
   the node weights.
@@ -478,15 +479,26 @@ def directional_albedo(mu, albedo):
     return 1.0 - chandrasekhar_h(mu, albedo) * s
 
 
-def albedo_correction(mu, mus, albedo):
+def albedo_correction(mu, mus, albedo, g: float = 0.0):
     """``(..., C)`` factor on the light incident at cosine ``mu`` ``(...)`` so that the hat-weighted nodes ``mus``
     reflect the exact total: ``A(mu) / sum_k h_k(mu) A(mu_k)`` (:func:`directional_albedo` at the similarity
-    ``albedo`` ``(C,)``). ``A`` is convex in ``mu``, so the linear mix of the nodes overestimates it between them (by
-    0.4 / 1.1 / 1.7% of skin1's red / green / blue light under a point light, up to 2-4% at cos 0.3) and
-    underestimates it below the last node (the mix holds there); 1 at every node. ``mu = None``: the same for
-    diffuse light, ``2 int A(mu) mu dmu`` over the cosine-weighted node weights, ``(C,)``."""
+    ``albedo`` ``(C,)``; for a concrete anisotropy ``g > 0`` the Henyey-Greenstein medium's own, tabulated by
+    adding-doubling, :func:`jaxsss.render.anisotropic_albedo.anisotropic_directional_albedo`). ``A`` is convex in
+    ``mu``, so the linear mix of the nodes overestimates it between them (by 0.4 / 1.1 / 1.7% of skin1's red / green /
+    blue light under a point light, up to 2-4% at cos 0.3) and underestimates it below the last node (the mix holds
+    there); 1 at every node. ``mu = None``: the same for diffuse light, ``2 int A(mu) mu dmu`` over the
+    cosine-weighted node weights, ``(C,)``."""
+    from jaxsss.render.anisotropic_albedo import anisotropic_directional_albedo, load_anisotropic_albedo
+
     a = jnp.asarray(albedo)
-    nodes = directional_albedo(jnp.asarray(mus)[:, None], a)  # (K, C)
+    g = float(g)
+
+    def curve(cos):  # (M,) concrete cosines -> (M, C)
+        if g == 0.0:
+            return directional_albedo(jnp.asarray(cos)[:, None], a)
+        return anisotropic_directional_albedo(np.asarray(cos), jnp.broadcast_to(a, a.shape[-1:]), g)
+
+    nodes = curve(np.asarray(mus, dtype=np.float64))  # (K, C)
 
     def ratio(exact, mix):  # 1 where nothing is reflected (a = 0)
         return jnp.where(mix > 0.0, exact / jnp.where(mix > 0.0, mix, 1.0), 1.0)
@@ -494,14 +506,16 @@ def albedo_correction(mu, mus, albedo):
     if mu is None:
         t, w = np.polynomial.legendre.leggauss(64)
         t = 0.5 * (t + 1.0)
-        exact = jnp.sum((w * t)[:, None] * directional_albedo(jnp.asarray(t)[:, None], a), axis=0)
+        exact = jnp.sum((w * t)[:, None] * curve(t), axis=0)
         return ratio(exact, jnp.einsum("k,kc->c", _diffuse_weights(mus), nodes))
     # Exact directional albedo over the nodes' linear mix, on a grid of cosines that holds the nodes (the ratio has
     # kinks there) and is finer below 0.05 (H is steepest there), then linear in mu at each light column: within 2e-4
     # of the exact ratio everywhere (H at every column would cost 64 quadrature nodes each).
-    grid = jnp.asarray(np.union1d(np.union1d(np.linspace(0.0, 1.0, 201), np.linspace(0.0, 0.05, 101)),
-                                  np.asarray(mus, dtype=np.float64)))
-    on_grid = ratio(directional_albedo(grid[:, None], a), jnp.einsum("gk,kc->gc", hat_weights(grid, mus), nodes))
+    grid = np.union1d(np.union1d(np.linspace(0.0, 1.0, 201), np.linspace(0.0, 0.05, 101)),
+                      np.asarray(mus, dtype=np.float64))
+    if g != 0.0:  # the HG table's own cosines too (its curve is linear between them)
+        grid = np.union1d(grid, load_anisotropic_albedo()["mu"])
+    on_grid = ratio(curve(grid), jnp.einsum("gk,kc->gc", hat_weights(jnp.asarray(grid), mus), nodes))
     mu = jnp.clip(jnp.asarray(mu), 0.0, 1.0)
     flat = jax.vmap(lambda col: jnp.interp(mu.reshape(-1), grid, col), in_axes=1, out_axes=1)(on_grid)
     return flat.reshape(mu.shape + on_grid.shape[-1:])

@@ -133,14 +133,16 @@ class Prepared(ReflectingPoints):
                         self.light_chord, medium.sigma_a + medium.sigma_s_prime / (1.0 - g))
             index_matched = ("chandrasekhar", "distance", "anisotropic") + MARCHED_EXITS
             if self.bssrdf_exit in index_matched and len(self.bssrdf_mus) > 1:
-                # Index-matched: the node mix reflects Chandrasekhar's exact total at every incidence cosine (for
-                # g > 0 the isotropic equivalent's: its curve in mu has the same shape within a few per cent). With
-                # the first order marched apart the same factor (the orders >= 2's own, A - A_1, measured worse:
-                # docs/path_tracer.md, "The first order in the object's geometry").
+                # Index-matched: the node mix reflects the exact total at every incidence cosine (Chandrasekhar's;
+                # for g > 0 the HG medium's by adding-doubling, whose curve in mu is not the isotropic equivalent's:
+                # jaxsss.render.anisotropic_albedo). With the first order marched apart the same factor (the orders
+                # >= 2's own, A - A_1, measured worse: docs/path_tracer.md, "The first order in the object's
+                # geometry").
                 albedo = jnp.broadcast_to(medium.alpha_prime, irradiance.shape[-1:])
-                irradiance = irradiance * albedo_correction(self.light_cos, self.bssrdf_mus, albedo)
+                g = 0.0 if self.bssrdf_tables is None else self.bssrdf_tables.g
+                irradiance = irradiance * albedo_correction(self.light_cos, self.bssrdf_mus, albedo, g)
                 if indirect is not None:
-                    indirect = indirect * albedo_correction(None, self.bssrdf_mus, albedo)
+                    indirect = indirect * albedo_correction(None, self.bssrdf_mus, albedo, g)
                     if self.bssrdf_exit in MARCHED_EXITS:
                         # Diffuse light is not marched: the orders >= 2 carry its first order's share too.
                         indirect = indirect * diffuse_first_order_restore(albedo)
