@@ -5,6 +5,9 @@ transport tables (:mod:`jaxsss.render.passage`'s cut beam, :mod:`jaxsss.render.e
 Units of the mean free path (``sigma_t = 1``); isotropic scattering (``g = 0``) at an index-matched boundary (every
 photon that reaches the surface leaves); absorption by weight (``albedo`` per interaction) and roulette below a weight
 of 1e-3 (survival 0.1, unbiased). NumPy: the tables are made once, offline, and shipped.
+
+:func:`diffuse_light_walk` is the one walk with a dielectric boundary (Fresnel at every crossing, uniform diffuse light):
+transport's curvature gain of a sphere, the evidence behind the curvature cap's note in ``docs/path_tracer.md``.
 """
 
 from __future__ import annotations
@@ -13,8 +16,8 @@ import functools
 
 import numpy as np
 
-__all__ = ["isotropic_directions", "pencil_beam_walk", "load_table", "roulette", "sphere_and_plane_tallies", "table_main",
-           "walk_photons"]
+__all__ = ["diffuse_light_walk", "isotropic_directions", "load_table", "pencil_beam_walk", "roulette",
+           "sphere_and_plane_tallies", "table_main", "walk_photons"]
 
 
 def isotropic_directions(rng: np.random.Generator, n: int) -> np.ndarray:
@@ -86,6 +89,64 @@ def walk_photons(rng: np.random.Generator, pos: np.ndarray, d: np.ndarray, albed
         d = isotropic_directions(rng, len(w))
         alive = roulette(rng, w)
         pos, d, w, payload = pos[alive], d[alive], w[alive], payload[alive]
+
+
+def diffuse_light_walk(albedo: float, eta: float, photons: int, seed: int, *, radius: float | None = None) -> float:
+    """The light a sphere of ``radius`` mean free paths (None: the half-space) with a smooth dielectric boundary
+    sends back under uniform diffuse light, per incident photon: every order >= 1 (the specular reflection and light
+    that crosses a sphere without interacting left out), isotropic scattering, ``albedo`` per interaction.
+
+    Each photon enters at a point of the surface (any: the light is uniform) with a cosine-weighted direction, its
+    weight the Fresnel transmittance ``1 - F(eta, mu_i)``, refracted by Snell. At every boundary hit from inside it
+    leaves with ``1 - F`` of its weight (after at least one interaction) and is reflected with ``F`` (total internal
+    reflection: all), a new free path from the boundary (memoryless). ``eta = 1`` is the index-matched walk of
+    :func:`walk_photons`. Over the half-space's, the sphere's value is transport's curvature gain for diffuse light,
+    against which :mod:`jaxsss.render.curvature`'s ratio is checked at a dielectric boundary
+    (``tests/render/test_curvature.py``)."""
+    from jaxsss.fresnel import fresnel_unpolarised
+
+    if not 0.0 <= albedo < 1.0:
+        raise ValueError(f"diffuse_light_walk(albedo={albedo}) must be in [0, 1)")
+    if not eta > 0.0:
+        raise ValueError(f"diffuse_light_walk(eta={eta}) must be > 0")
+    if radius is not None and not radius > 0.0:
+        raise ValueError(f"diffuse_light_walk(radius={radius}) must be > 0 (mean free paths) or None")
+    rng = np.random.default_rng(seed)
+    mu_i = np.sqrt(rng.random(photons))
+    w = 1.0 - fresnel_unpolarised(mu_i, eta, xp=np)
+    # Snell: the refracted direction, about the inward normal -z at the entry.
+    sin_t = np.sqrt(1.0 - mu_i * mu_i) / eta
+    phi = 2.0 * np.pi * rng.random(photons)
+    d = np.stack([sin_t * np.cos(phi), sin_t * np.sin(phi), -np.sqrt(1.0 - sin_t * sin_t)], axis=1)
+    # The sphere about the origin, entered at its top; the half-space z < 0, entered at the origin.
+    pos = np.zeros((photons, 3)) if radius is None else np.tile([0.0, 0.0, float(radius)], (photons, 1))
+    order = np.zeros(photons, dtype=np.int64)
+    out = 0.0
+    while len(w):
+        new = pos - np.log(rng.random(len(w)))[:, None] * d
+        cross = new[:, 2] > 0.0 if radius is None else np.einsum("ij,ij->i", new, new) > radius * radius
+        p, v, wc, oc = pos[cross], d[cross], w[cross], order[cross]
+        if radius is None:
+            hit = p - (p[:, 2] / v[:, 2])[:, None] * v
+            normal = np.broadcast_to([0.0, 0.0, 1.0], hit.shape)
+        else:  # the flight's exit from the sphere
+            b = np.einsum("ij,ij->i", p, v)
+            t = -b + np.sqrt(np.maximum(b * b - np.einsum("ij,ij->i", p, p) + radius * radius, 0.0))
+            hit = p + t[:, None] * v
+            normal = hit / radius
+        cos_out = np.clip(np.einsum("ij,ij->i", v, normal), 0.0, 1.0)
+        # Fresnel from inside (relative index 1 / eta): leave with 1 - F, reflect F.
+        F = fresnel_unpolarised(cos_out, 1.0 / eta, xp=np)
+        out += float(np.sum(np.where(oc >= 1, wc * (1.0 - F), 0.0)))
+        reflected = v - 2.0 * cos_out[:, None] * normal
+        inside = ~cross
+        pos = np.concatenate([new[inside], hit - 1e-9 * normal])
+        d = np.concatenate([isotropic_directions(rng, int(inside.sum())), reflected])
+        w = np.concatenate([w[inside] * albedo, wc * F])
+        order = np.concatenate([order[inside] + 1, oc])
+        alive = roulette(rng, w) & (w > 0.0)
+        pos, d, w, order = pos[alive], d[alive], w[alive], order[alive]
+    return out / photons
 
 
 def table_main(argv, *, prog: str, description: str, path, photons: int, photons_help: str, load, refit, generate,
