@@ -121,9 +121,9 @@ def anisotropic_directional_albedo(mu, alpha_prime, g: float):
     # Linear in mu on the quadrature's cosines (concrete): (X, M_out).
     by_mu = by_g @ _hat_matrix(mu, tab["mu"]).T
     # Linear in x = sqrt(1 - alpha') (traced; a zero-safe square root keeps the derivative finite at alpha' = 1).
-    one_minus = jnp.clip(1.0 - jnp.asarray(alpha_prime, dtype=jnp.float64), 0.0, 1.0)
+    one_minus = jnp.clip(1.0 - jnp.asarray(alpha_prime), 0.0, 1.0)
     x = jnp.where(one_minus > 0.0, jnp.sqrt(jnp.where(one_minus > 0.0, one_minus, 1.0)), 0.0)
-    out = piecewise_linear(x[:, None], tab["x"], jnp.asarray(by_mu))  # (C, M_out)
+    out = piecewise_linear(x[:, None], tab["x"], jnp.asarray(by_mu, dtype=x.dtype))  # (C, M_out)
     return out.T
 
 

@@ -101,8 +101,8 @@ def diffuse_light_walk(albedo: float, eta: float, photons: int, seed: int, *, ra
     leaves with ``1 - F`` of its weight (after at least one interaction) and is reflected with ``F`` (total internal
     reflection: all), a new free path from the boundary (memoryless). ``eta = 1`` is the index-matched walk of
     :func:`walk_photons`. Over the half-space's, the sphere's value is transport's curvature gain for diffuse light,
-    against which :mod:`jaxsss.render.curvature`'s ratio is checked at a dielectric boundary
-    (``tests/render/test_curvature.py``)."""
+    against which :mod:`jaxsss.render.curvature`'s ratio was measured at a dielectric boundary (docs/path_tracer.md,
+    "Held out under the sky"). Checked against adding-doubling and Chandrasekhar (``tests/render/test_walk.py``)."""
     from jaxsss.fresnel import fresnel_unpolarised
 
     if not 0.0 <= albedo < 1.0:
