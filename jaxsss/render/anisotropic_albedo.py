@@ -79,18 +79,6 @@ def load_anisotropic_albedo() -> dict:
     return load_table(TABLE)
 
 
-def _hat_matrix(v, nodes) -> np.ndarray:
-    """``(len(v), len(nodes))`` linear interpolation weights of the concrete ``v`` on sorted ``nodes``, held beyond the
-    ends."""
-    v = np.clip(np.asarray(v, dtype=np.float64), nodes[0], nodes[-1])
-    k = np.clip(np.searchsorted(nodes, v, side="right") - 1, 0, len(nodes) - 2)
-    t = (v - nodes[k]) / (nodes[k + 1] - nodes[k])
-    out = np.zeros((len(v), len(nodes)))
-    out[np.arange(len(v)), k] = 1.0 - t
-    out[np.arange(len(v)), k + 1] += t
-    return out
-
-
 def anisotropic_directional_albedo(mu, alpha_prime, g: float):
     """``(M, C)``: the directional albedo ``A(mu; alpha', g)`` of an index-matched half-space (module docstring).
 
@@ -116,10 +104,9 @@ def anisotropic_directional_albedo(mu, alpha_prime, g: float):
         raise ValueError(f"anisotropic_directional_albedo(mu in [{mu.min()}, {mu.max()}]) must be in [0, 1]")
     tab = load_anisotropic_albedo()
     # Linear in g (concrete): (X, M).
-    w_g = _hat_matrix([g], tab["g"])[0]
-    by_g = np.einsum("i,ixm->xm", w_g, tab["A"])
+    by_g = np.apply_along_axis(lambda col: np.interp(g, tab["g"], col), 0, tab["A"])
     # Linear in mu on the quadrature's cosines (concrete): (X, M_out).
-    by_mu = by_g @ _hat_matrix(mu, tab["mu"]).T
+    by_mu = np.apply_along_axis(lambda row: np.interp(mu, tab["mu"], row), 1, by_g)
     # Linear in x = sqrt(1 - alpha') (traced; a zero-safe square root keeps the derivative finite at alpha' = 1).
     one_minus = jnp.clip(1.0 - jnp.asarray(alpha_prime), 0.0, 1.0)
     x = jnp.where(one_minus > 0.0, jnp.sqrt(jnp.where(one_minus > 0.0, one_minus, 1.0)), 0.0)

@@ -57,6 +57,21 @@ def pencil_beam_walk(albedo: float, mu_i: float, photons: int, seed: int, tally,
     walk_photons(rng, pos, d, albedo, tally, centre=centre, radius=radius, min_order=min_order)
 
 
+def _crossing(p: np.ndarray, v: np.ndarray, centre, radius) -> tuple[np.ndarray, np.ndarray]:
+    """Where flights from ``p`` along ``v`` ``(M, 3)`` leave the half-space ``z < 0`` (``centre`` None) or the sphere
+    of ``radius`` about ``centre``, and the outward normal there: ``(hit, normal)``, each ``(M, 3)``."""
+    if centre is None:
+        t = -p[:, 2] / v[:, 2]
+        hit = p + t[:, None] * v
+        return hit, np.broadcast_to([0.0, 0.0, 1.0], hit.shape)
+    # The larger root of |q + t v| = radius, q = p - centre.
+    q = p - centre
+    b = np.einsum("ij,ij->i", q, v)
+    t = -b + np.sqrt(np.maximum(b * b - (np.einsum("ij,ij->i", q, q) - radius * radius), 0.0))
+    hit = p + t[:, None] * v
+    return hit, (hit - centre) / radius
+
+
 def walk_photons(rng: np.random.Generator, pos: np.ndarray, d: np.ndarray, albedo: float, tally, *,
                  centre=None, radius: float | None = None, min_order: int = 1, payload=None) -> None:
     """The walk itself: photons at ``pos`` ``(N, 3)`` on the surface, heading inwards along ``d`` ``(N, 3)``, in the
@@ -76,13 +91,7 @@ def walk_photons(rng: np.random.Generator, pos: np.ndarray, d: np.ndarray, albed
             out = np.einsum("ij,ij->i", rel, rel) > radius * radius
         if out.any() and order >= min_order:
             p, v = pos[out], d[out]
-            if centre is None:
-                t = -p[:, 2] / v[:, 2]
-            else:  # where the flight crosses the sphere
-                q = p - centre
-                b = np.einsum("ij,ij->i", q, v)
-                t = -b + np.sqrt(np.maximum(b * b - (np.einsum("ij,ij->i", q, q) - radius * radius), 0.0))
-            tally(payload[out], p + t[:, None] * v, v, w[out])
+            tally(payload[out], _crossing(p, v, centre, radius)[0], v, w[out])
         keep = ~out
         pos, w, payload = new[keep], w[keep] * albedo, payload[keep]
         order += 1
@@ -119,6 +128,7 @@ def diffuse_light_walk(albedo: float, eta: float, photons: int, seed: int, *, ra
     phi = 2.0 * np.pi * rng.random(photons)
     d = np.stack([sin_t * np.cos(phi), sin_t * np.sin(phi), -np.sqrt(1.0 - sin_t * sin_t)], axis=1)
     # The sphere about the origin, entered at its top; the half-space z < 0, entered at the origin.
+    centre = None if radius is None else np.zeros(3)
     pos = np.zeros((photons, 3)) if radius is None else np.tile([0.0, 0.0, float(radius)], (photons, 1))
     order = np.zeros(photons, dtype=np.int64)
     out = 0.0
@@ -126,14 +136,7 @@ def diffuse_light_walk(albedo: float, eta: float, photons: int, seed: int, *, ra
         new = pos - np.log(rng.random(len(w)))[:, None] * d
         cross = new[:, 2] > 0.0 if radius is None else np.einsum("ij,ij->i", new, new) > radius * radius
         p, v, wc, oc = pos[cross], d[cross], w[cross], order[cross]
-        if radius is None:
-            hit = p - (p[:, 2] / v[:, 2])[:, None] * v
-            normal = np.broadcast_to([0.0, 0.0, 1.0], hit.shape)
-        else:  # the flight's exit from the sphere
-            b = np.einsum("ij,ij->i", p, v)
-            t = -b + np.sqrt(np.maximum(b * b - np.einsum("ij,ij->i", p, p) + radius * radius, 0.0))
-            hit = p + t[:, None] * v
-            normal = hit / radius
+        hit, normal = _crossing(p, v, centre, radius)
         cos_out = np.clip(np.einsum("ij,ij->i", v, normal), 0.0, 1.0)
         # Fresnel from inside (relative index 1 / eta): leave with 1 - F, reflect F.
         F = fresnel_unpolarised(cos_out, 1.0 / eta, xp=np)
