@@ -16,7 +16,7 @@ import functools
 
 import numpy as np
 
-__all__ = ["diffuse_light_walk", "isotropic_directions", "load_table", "pencil_beam_walk", "roulette",
+__all__ = ["diffuse_light_walk", "fresnel_walk", "isotropic_directions", "load_table", "pencil_beam_walk", "roulette",
            "sphere_and_plane_tallies", "table_main", "walk_photons"]
 
 
@@ -40,21 +40,33 @@ def roulette(rng: np.random.Generator, w: np.ndarray) -> np.ndarray:
 
 
 def pencil_beam_walk(albedo: float, mu_i: float, photons: int, seed: int, tally, *, radius: float | None = None,
-                     min_order: int = 1) -> None:
+                     min_order: int = 1, eta: float = 1.0) -> None:
     """Walk ``photons`` photons entering at the origin along ``(sin theta_i, 0, -mu_i)`` and call ``tally(first,
     exit_point, direction, weight)`` with each batch that leaves: their first flight's length ``(M,)``, where they
-    cross the surface ``(M, 3)``, their direction ``(M, 3)`` and weight ``(M,)``.
+    cross the surface ``(M, 3)``, their direction inside ``(M, 3)`` and weight ``(M,)``.
 
     ``radius`` (mean free paths): a sphere of that radius centred at ``(0, 0, -radius)`` (its surface touches the
     plane ``z = 0`` at the entry, with the same outward normal there) instead of the half-space ``z < 0``; the outward
     normal at an exit point ``p`` is then ``(p - c) / radius``. ``min_order``: tally only photons that have
-    interacted at least that many times (every photon still inside has interacted equally often: one interaction
-    per step); the default 1 leaves out the light that crosses a sphere uncollided."""
+    interacted at least that many times (the default 1 leaves out the light that crosses a sphere uncollided).
+
+    ``eta``: the relative index of a smooth boundary (:func:`fresnel_walk`); ``mu_i`` is then the cosine outside,
+    the beam enters refracted by Snell with the weight ``1 - F(mu_i)`` (per incident photon). 1: index-matched
+    (:func:`walk_photons`; every order counts one interaction per step)."""
+    from jaxsss.fresnel import fresnel_unpolarised
+
     rng = np.random.default_rng(seed)
     pos = np.zeros((photons, 3))
-    d = np.tile([np.sqrt(1.0 - mu_i * mu_i), 0.0, -mu_i], (photons, 1))
     centre = None if radius is None else np.array([0.0, 0.0, -float(radius)])
-    walk_photons(rng, pos, d, albedo, tally, centre=centre, radius=radius, min_order=min_order)
+    if eta == 1.0:
+        d = np.tile([np.sqrt(1.0 - mu_i * mu_i), 0.0, -mu_i], (photons, 1))
+        walk_photons(rng, pos, d, albedo, tally, centre=centre, radius=radius, min_order=min_order)
+        return
+    # Snell: the refracted direction, and the Fresnel transmittance of the entry.
+    sin_t = np.sqrt(1.0 - mu_i * mu_i) / eta
+    d = np.tile([sin_t, 0.0, -np.sqrt(1.0 - sin_t * sin_t)], (photons, 1))
+    w = np.full(photons, 1.0 - float(fresnel_unpolarised(np.asarray(mu_i), eta, xp=np)))
+    fresnel_walk(rng, pos, d, w, albedo, eta, tally, centre=centre, radius=radius, min_order=min_order)
 
 
 def _crossing(p: np.ndarray, v: np.ndarray, centre, radius) -> tuple[np.ndarray, np.ndarray]:
@@ -130,26 +142,47 @@ def diffuse_light_walk(albedo: float, eta: float, photons: int, seed: int, *, ra
     # The sphere about the origin, entered at its top; the half-space z < 0, entered at the origin.
     centre = None if radius is None else np.zeros(3)
     pos = np.zeros((photons, 3)) if radius is None else np.tile([0.0, 0.0, float(radius)], (photons, 1))
-    order = np.zeros(photons, dtype=np.int64)
-    out = 0.0
+    out = [0.0]
+
+    def tally(payload, exit_point, direction, weight):
+        out[0] += float(np.sum(weight))
+
+    fresnel_walk(rng, pos, d, w, albedo, eta, tally, centre=centre, radius=radius)
+    return out[0] / photons
+
+
+def fresnel_walk(rng: np.random.Generator, pos: np.ndarray, d: np.ndarray, w: np.ndarray, albedo: float, eta: float,
+                 tally, *, centre=None, radius: float | None = None, min_order: int = 1, payload=None) -> None:
+    """:func:`walk_photons` behind a smooth dielectric boundary of relative index ``eta``: photons at ``pos`` ``(N,
+    3)`` heading inwards along ``d`` with weights ``w`` ``(N,)`` (the entry's transmittance already in them). At every
+    boundary hit from inside a photon leaves with ``1 - F`` of its weight (``F`` from inside, relative index ``1 /
+    eta``; tallied after at least ``min_order`` interactions: ``tally(payload, exit_point, direction, weight)``,
+    ``direction`` inside) and is reflected with ``F`` (total internal reflection: all), a new free path from the
+    boundary (memoryless). ``payload`` ``(N,)`` rides with each photon (None: zeros)."""
+    from jaxsss.fresnel import fresnel_unpolarised
+
+    order = np.zeros(len(w), dtype=np.int64)
+    payload = np.zeros(len(w)) if payload is None else payload
     while len(w):
         new = pos - np.log(rng.random(len(w)))[:, None] * d
-        cross = new[:, 2] > 0.0 if radius is None else np.einsum("ij,ij->i", new, new) > radius * radius
-        p, v, wc, oc = pos[cross], d[cross], w[cross], order[cross]
+        cross = new[:, 2] > 0.0 if centre is None else np.einsum("ij,ij->i", new - centre, new - centre) > radius**2
+        p, v, wc, oc, pc = pos[cross], d[cross], w[cross], order[cross], payload[cross]
         hit, normal = _crossing(p, v, centre, radius)
         cos_out = np.clip(np.einsum("ij,ij->i", v, normal), 0.0, 1.0)
         # Fresnel from inside (relative index 1 / eta): leave with 1 - F, reflect F.
         F = fresnel_unpolarised(cos_out, 1.0 / eta, xp=np)
-        out += float(np.sum(np.where(oc >= 1, wc * (1.0 - F), 0.0)))
+        leaves = oc >= min_order
+        if leaves.any():
+            tally(pc[leaves], hit[leaves], v[leaves], (wc * (1.0 - F))[leaves])
         reflected = v - 2.0 * cos_out[:, None] * normal
         inside = ~cross
         pos = np.concatenate([new[inside], hit - 1e-9 * normal])
         d = np.concatenate([isotropic_directions(rng, int(inside.sum())), reflected])
         w = np.concatenate([w[inside] * albedo, wc * F])
         order = np.concatenate([order[inside] + 1, oc])
+        payload = np.concatenate([payload[inside], pc])
         alive = roulette(rng, w) & (w > 0.0)
-        pos, d, w, order = pos[alive], d[alive], w[alive], order[alive]
-    return out / photons
+        pos, d, w, order, payload = pos[alive], d[alive], w[alive], order[alive], payload[alive]
 
 
 def table_main(argv, *, prog: str, description: str, path, photons: int, photons_help: str, load, refit, generate,

@@ -7,8 +7,9 @@ import numpy as np
 import pytest
 
 from jaxsss.fresnel import fresnel_unpolarised
+from jaxsss.render.anisotropic_albedo import dielectric_directional_albedo
 from jaxsss.render.bssrdf import directional_albedo
-from jaxsss.render.walk import diffuse_light_walk
+from jaxsss.render.walk import diffuse_light_walk, pencil_beam_walk
 
 PHOTONS = 40_000
 
@@ -61,3 +62,21 @@ def test_bad_input_is_named():
         diffuse_light_walk(0.5, 0.0, 10, 0)
     with pytest.raises(ValueError, match=r"diffuse_light_walk\(radius=-1.0\)"):
         diffuse_light_walk(0.5, 1.0, 10, 0, radius=-1.0)
+
+
+@pytest.mark.parametrize("eta", [1.33, 1.5])
+def test_a_pencil_beam_behind_a_boundary_reflects_adding_doublings_albedo(eta):
+    """The Fresnel pencil beam on the half-space (:func:`pencil_beam_walk` with ``eta``: Snell and the entry's
+    transmittance, Fresnel at every crossing) sends back the dielectric directional albedo of adding-doubling
+    (:func:`jaxsss.render.anisotropic_albedo.dielectric_directional_albedo`, a separate method) at incidence cosines 1,
+    0.5 and 0.1 within 1.5% (30000 photons: 0.5% noise)."""
+    albedo = 0.95
+    exact = np.asarray(dielectric_directional_albedo(np.array([1.0, 0.5, 0.1]), jnp.array([albedo]), 0.0, eta))[:, 0]
+    for k, mu in enumerate((1.0, 0.5, 0.1)):
+        total = [0.0]
+
+        def tally(first, exit_point, direction, weight, total=total):
+            total[0] += float(np.sum(weight))
+
+        pencil_beam_walk(albedo, mu, 30_000, 17 + k, tally, eta=eta)
+        assert total[0] / 30_000 == pytest.approx(exact[k], rel=1.5e-2), (mu, total[0] / 30_000, exact[k])
