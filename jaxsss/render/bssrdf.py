@@ -24,7 +24,10 @@ The hierarchical and direct sums (:mod:`jaxsss.render.radiance`) add ``Phi_p R(|
   boundary the light of each column is scaled so that the nodes' linear mix reflects the exact directional albedo
   at its cosine (:func:`albedo_correction`; Chandrasekhar's for ``g = 0``, the HG medium's by adding-doubling for
   ``g > 0``, :mod:`jaxsss.render.anisotropic_albedo`: the albedo is convex in ``mu``, so the mix alone was 0.4-1.7%
-  too bright for skin1 under a point light, up to 4% at cos 0.3). The forward shift of
+  too bright for skin1 under a point light, up to 4% at cos 0.3). Behind a dielectric boundary the same with the
+  share that the boundary lets in and the half-space sends back out, by adding-doubling with the boundary: concave in
+  ``mu`` (the transmittance falls to 0 at grazing incidence), so the mix alone under-reflected cos 0.25 by 20-30% at
+  ``eta = 1.4``. The forward shift of
   an oblique profile (towards where the light travels) is averaged out: the kernel stays radial, so the hierarchical
   sum and its octree are unchanged. Diffuse indirect light enters with the cosine-weighted hemispherical average of
   the node weights.
@@ -63,8 +66,11 @@ it entered (the 20 mm skin1 sphere gives 12-15% more red light under a sky at et
 in Mitsuba by scaling the coefficients). Each pair's profile is multiplied by the diffusion dipole's sphere-to-plane
 ratio at the pair's curvature, estimated from the two normals (:mod:`jaxsss.render.curvature`; octree nodes carry
 their area-weighted mean normal, :attr:`jaxsss.render.renderer.Prepared.ent_normal`), interpolated with the profile
-from a table made once per image (:func:`white_kernel`, ``curvature=True``). The dipole kernel stays flat
-(it is the pre-issue-17 renderer).
+from a table made once per image (:func:`white_kernel`, ``curvature=True``). The ratio is capped at a radius of
+6.7 ``l_u`` at an index-matched boundary (:data:`jaxsss.render.curvature.KAPPA_MAX_ZR`; the marched kernels lit from
+behind: 3.3 ``l_u`` with transport's far part, :mod:`jaxsss.render.curvature_correction`); behind a dielectric
+boundary at 3.3 ``l_u`` with transport's near part, ``min(Q, 1)`` of Fresnel walks
+(:mod:`jaxsss.render.dielectric_correction`). The dipole kernel stays flat (it is the pre-issue-17 renderer).
 
 Passage (``"white*"``). A half-space takes in all the light that enters it; on a curved or thin part light entering
 at grazing incidence can run through the object and leave without interacting. Pass 1 traces each light column's
@@ -172,6 +178,10 @@ CURVATURE_WHY = ("the surface's curvature per pair (jaxsss.render.curvature: a c
                  "chord) for normal incidence only; grazing light on curved or thin parts)")
 """What the plan says of the white kernels' geometry terms: the curvature ratio (always on: 1 on a plane, one ratio
 per pair) and the uncollided passage (always on: 1 where a light's refracted ray never leaves the object)."""
+DIELECTRIC_WHY = ("behind the dielectric boundary the nodes' mix reflects the exact directional albedo, concave in the "
+                  "cosine (jaxsss.render.anisotropic_albedo, adding-doubling), and the curvature ratio reaches spheres "
+                  "of 3.3 l_u with transport's near part (jaxsss.render.dielectric_correction, Fresnel walks)")
+"""What the plan adds for the white kernels at ``eta != 1``."""
 WHITE_DENSITY = 2.0
 """The white kernels' irradiance samples per ``pi l_u^2`` (the paper's dipole: 1; the scene's ``density`` multiplies
 both). The near field spreads each pair's ``w R`` over ``rho_0`` = four sample radii, about ``2 l_u``, and that blur
@@ -366,14 +376,15 @@ def choose_bssrdf(medium: Medium, request: str = "auto") -> tuple[str, str]:
         return "dipole", (f"g = {g:g} >= {FORWARD_G:g} at eta = {eta:g}: the forward-scattering exit distribution "
                           "is tabulated for an index-matched boundary only, and the isotropic one puts "
                           "forward-grazing light where the eye sees it; the dipole plus single scattering")
+    boundary = "" if eta == 1.0 else f"; {DIELECTRIC_WHY}"
     if request in ("auto", "white-oblique"):
         return "white-oblique", (
             f"white Monte Carlo family profile (g={g:g}, n={eta:g}) at normal incidence and at incidence cos "
             f"{', '.join(f'{m:g}' for m in KERNEL_MUS)} from {_sources_text(g, eta)}, shifted forward: every "
-            f"scattering order, grazing light's stronger response (terminator); {exit_why}; {CURVATURE_WHY}")
+            f"scattering order, grazing light's stronger response (terminator); {exit_why}; {CURVATURE_WHY}{boundary}")
     return "white", (f"white Monte Carlo family profile (g={g:g}, n={eta:g}), normal incidence only (requested): every "
                      f"scattering order, but grazing light is treated as normal (terminator off); {exit_why}; "
-                     f"{CURVATURE_WHY}")
+                     f"{CURVATURE_WHY}{boundary}")
 
 
 def exit_model_for(medium: Medium) -> str:
@@ -1105,7 +1116,7 @@ def white_kernel(medium: Medium, sources: WhiteSources, mus: tuple = (1.0,) + KE
     if not curvature:
         return kernel
     return eqx.tree_at(lambda k: k.curvature, kernel,
-                       _curvature_table(kernel, medium, tuple(mus), curvature_transport),
+                       _curvature_table(kernel, medium, tuple(mus), curvature_transport, sources.n),
                        is_leaf=lambda x: x is None)
 
 
@@ -1147,11 +1158,15 @@ def multiple_orders(kernel: WhiteKernel, medium: Medium, mus: tuple) -> WhiteKer
 
 
 @eqx.filter_jit
-def _curvature_table(kernel: WhiteKernel, medium: Medium, mus: tuple, transport: bool = False) -> tuple:
+def _curvature_table(kernel: WhiteKernel, medium: Medium, mus: tuple, transport: bool = False,
+                     n: float = 1.0) -> tuple:
     """:attr:`WhiteKernel.curvature` for ``kernel``'s profiles of ``medium`` at incidence cosines ``mus``.
     ``transport`` (the marched kernels' orders >= 2): the diffusion ratio times its transport correction ``Q``, capped
-    at the correction table's smallest sphere (:mod:`jaxsss.render.curvature_correction`)."""
+    at the correction table's smallest sphere (:mod:`jaxsss.render.curvature_correction`). Behind a dielectric
+    boundary (a concrete relative index ``n != 1``, every order): the same cap, times ``min(Q, 1)`` of the Fresnel walks
+    (:mod:`jaxsss.render.dielectric_correction`)."""
     from jaxsss.render.curvature_correction import KAPPA_MAX_MARCHED, log_correction_table
+    from jaxsss.render.dielectric_correction import KAPPA_MAX_DIELECTRIC, dielectric_log_correction_table
 
     c = kernel.sigma_s.shape
     sigma_a, sigma_s_prime, A = (jnp.broadcast_to(jnp.asarray(v, kernel.sigma_s.dtype), c)
@@ -1162,14 +1177,19 @@ def _curvature_table(kernel: WhiteKernel, medium: Medium, mus: tuple, transport:
     depth = snell_cosine(jnp.asarray(mus)[:, None], eta)[0]
     n_grid = kernel.log_R.shape[1]
     r = GRID_RHO_MIN * 10.0 ** (jnp.arange(n_grid) / GRID_PER_DECADE)[:, None] / kernel.sigma_s  # (G, C) mm
-    kappa_max = KAPPA_MAX_MARCHED if transport else KAPPA_MAX_ZR
+    dielectric = float(n) != 1.0
+    kappa_max = KAPPA_MAX_DIELECTRIC if dielectric else KAPPA_MAX_MARCHED if transport else KAPPA_MAX_ZR
     # log(R C) on the grid x the curvature nodes, (K, G, N, C); its bilinear coefficients per cell.
     f = kernel.log_R[:, :, None, :] + log_ratio_table(r, sigma_a, sigma_s_prime, A, depth, kappa_max)
-    if transport:
+    if transport or dielectric:
         # C Q: Q, transport's pencil beam on a sphere over the renderer's model of it, at the nodes' curvature in l_u.
         u = 1.0 - (1.0 - jnp.linspace(0.0, 1.0, N_KAPPA)) ** 2
         kappa_lu = u[:, None] * kappa_cap(r, sigma_t_prime, kappa_max)[:, None, :] / sigma_t_prime  # (G, N, C)
-        f = f + jnp.maximum(log_correction_table(r * sigma_t_prime, kappa_lu, mus, sigma_s_prime / sigma_t_prime), 0.0)
+        coordinates = (r * sigma_t_prime, kappa_lu, mus, sigma_s_prime / sigma_t_prime)
+        if dielectric:  # the near part (Q < 1) of the Fresnel walks
+            f = f + jnp.minimum(dielectric_log_correction_table(*coordinates, float(n)), 0.0)
+        else:  # the far part (Q > 1) of the index-matched orders >= 2
+            f = f + jnp.maximum(log_correction_table(*coordinates), 0.0)
     f00, f10, f01, f11 = f[:, :-1, :-1], f[:, 1:, :-1], f[:, :-1, 1:], f[:, 1:, 1:]
     coefficients = jnp.stack([f00, f10 - f00, f01 - f00, f11 - f10 - f01 + f00], axis=-1).reshape(-1, 4)
     return coefficients, sigma_t_prime, depth, jnp.asarray(kappa_max, sigma_t_prime.dtype)

@@ -30,8 +30,9 @@ moves to the table's smallest sphere (:data:`KAPPA_MAX_MARCHED`). Its near part 
 azimuth about the entry (the shifted profile has too little light ahead of it) it takes light from the terminator,
 which is already short; with it the back-lit skin1 sphere was 0.227 / 0.239 / 0.219 per pixel against 0.211 / 0.214 /
 0.208 (docs/path_tracer.md). From the light's side neither part is used: the terminator's short exitance there stands
-in for the exit's missing azimuth, and ``Q`` would undo it (chicken1 0.034 -> 0.090 in red). The unmarched kernels (a
-dielectric boundary, ``g > 0``, skies) keep the capped diffusion ratio.
+in for the exit's missing azimuth, and ``Q`` would undo it (chicken1 0.034 -> 0.090 in red). The other kernels at
+``eta = 1`` (``g > 0``, skies) keep the capped diffusion ratio; behind a dielectric boundary the near part of Fresnel
+walks' ``Q`` is used (:mod:`jaxsss.render.dielectric_correction`).
 
 ``python -m jaxsss.render.curvature_correction --regenerate`` remakes ``data/curvature_correction.npz``.
 """
@@ -74,9 +75,11 @@ CORRECTION_MIN_COUNT = 400
 CORRECTION_TABLE = Path(__file__).resolve().parent / "data" / "curvature_correction.npz"
 
 
-def _tally(albedo: float, mu_i: float, radius: float | None, photons: int, seed: int) -> np.ndarray:
-    """``(2, D)``: the orders >= 2's light per photon by chord from the entry (:data:`CORRECTION_D_EDGES`, mean free
-    paths), and the photons in each bin, in a sphere of ``radius`` or (None) the half-space."""
+def _tally(albedo: float, mu_i: float, radius: float | None, photons: int, seed: int, eta: float = 1.0,
+           min_order: int = 2) -> np.ndarray:
+    """``(2, D)``: the light per photon of the orders ``>= min_order`` by chord from the entry
+    (:data:`CORRECTION_D_EDGES`, mean free paths), and the photons in each bin, in a sphere of ``radius`` or (None) the
+    half-space, behind a boundary of relative index ``eta`` (1: index-matched)."""
     from jaxsss.render.walk import pencil_beam_walk
 
     out = np.zeros((2, len(CORRECTION_D_EDGES) - 1))
@@ -86,31 +89,36 @@ def _tally(albedo: float, mu_i: float, radius: float | None, photons: int, seed:
         out[0] += np.histogram(chord, CORRECTION_D_EDGES, weights=weight)[0]
         out[1] += np.histogram(chord, CORRECTION_D_EDGES)[0]
 
-    pencil_beam_walk(albedo, mu_i, photons, seed, add, radius=radius, min_order=2)
+    pencil_beam_walk(albedo, mu_i, photons, seed, add, radius=radius, min_order=min_order, eta=eta)
     out[0] /= photons
     return out
 
 
-def renderer_model(mu_i: float, albedo: float, radius: float, d=None) -> np.ndarray:
+def renderer_model(mu_i: float, albedo: float, radius: float, d=None, eta: float = 1.0) -> np.ndarray:
     """``(D,)``: the renderer's model of the pencil beam's gain at the chords ``d`` (transport lengths; default the
-    nodes :data:`CORRECTION_D`) on a sphere of ``radius`` transport lengths: the diffusion ratio (source at depth
-    ``mu_i``, the chord's cap only) times the share the cut beam keeps (the chord ``2 radius mu_i``, azimuthal mean;
-    index-matched, ``sigma_t' = 1``)."""
+    nodes :data:`CORRECTION_D`) on a sphere of ``radius`` transport lengths: the diffusion ratio (source at the
+    refracted depth of ``mu_i``, the boundary's ``A`` at ``eta``, the chord's cap only) times the share the cut beam
+    keeps (the refracted chord ``2 radius mu_t``, azimuthal mean; ``sigma_t' = 1``)."""
+    from jaxsss.fresnel import A_coefficient, snell_cosine
     from jaxsss.render.curvature import curvature_ratio
     from jaxsss.render.passage import passage_cells, passage_loss, passage_loss_table
 
     d = np.asarray(CORRECTION_D if d is None else d, dtype=np.float64)
-    ratio = np.asarray(curvature_ratio(d, 1.0 / radius, 1.0 - albedo, albedo, 1.0, mu_i, kappa_max=np.inf))
+    # Index-matched: A = 1 and the depth mu_i (as the shipped table was fitted); else Snell and the medium's A.
+    mu_t, A = (mu_i, 1.0) if eta == 1.0 else (float(snell_cosine(np.asarray(mu_i), eta, xp=np)[0]),
+                                              float(A_coefficient(eta)))
+    ratio = np.asarray(curvature_ratio(d, 1.0 / radius, 1.0 - albedo, albedo, A, mu_t, kappa_max=np.inf))
     cells = passage_cells(passage_loss_table(jnp.asarray([albedo]), (mu_i,)))
-    chord = 2.0 * radius * mu_i
+    chord = 2.0 * radius * mu_t
     shape = (len(d), 1, 1)
     loss = passage_loss(cells, jnp.full(shape, chord), jnp.asarray(d / chord).reshape(shape), 0.5)
     return ratio * (1.0 - np.asarray(loss)[:, 0, 0])
 
 
-def fit_curvature_correction(sphere: np.ndarray, plane: np.ndarray) -> np.ndarray:
-    """``log Q`` ``(U, A, len(CORRECTION_KAPPA), D)`` from the walks' tallies, ``sphere`` ``(U, A, R, 2, D)`` over
-    :data:`CORRECTION_RADII` and ``plane`` ``(U, A, 2, D)`` (light, photons): the walk's gain over the renderer's
+def fit_curvature_correction(sphere: np.ndarray, plane: np.ndarray, eta: float = 1.0,
+                             radii: tuple = CORRECTION_RADII) -> np.ndarray:
+    """``log Q`` ``(U, A, 1 + R, D)`` from the walks' tallies, ``sphere`` ``(U, A, R, 2, D)`` over ``radii`` (default
+    :data:`CORRECTION_RADII`) and ``plane`` ``(U, A, 2, D)`` (light, photons): the walk's gain over the renderer's
     model (:func:`renderer_model`) per chord bin, 0 on the plane; held beyond the last bin with
     :data:`CORRECTION_MIN_COUNT` photons in both walks.
 
@@ -126,7 +134,7 @@ def fit_curvature_correction(sphere: np.ndarray, plane: np.ndarray) -> np.ndarra
     for k, mu in enumerate(CORRECTION_MUS):
         for j, albedo in enumerate(CORRECTION_ALBEDO):
             p = plane[k, j]
-            for r, radius in enumerate(CORRECTION_RADII):
+            for r, radius in enumerate(radii):
                 s = sphere[k, j, r]
                 antipode = (e0 < 2.0 * radius) & (e1 > 2.0 * radius)
                 ok = (s[1] >= CORRECTION_MIN_COUNT) & (p[1] >= CORRECTION_MIN_COUNT) & ((e1 <= 2.0 * radius) | antipode)
@@ -135,7 +143,7 @@ def fit_curvature_correction(sphere: np.ndarray, plane: np.ndarray) -> np.ndarra
                 chord = np.where(antipode, 0.5 * (e0 + 2.0 * radius), np.asarray(CORRECTION_D))
                 # Transport's gain over the renderer's model of it, per chord bin.
                 q = np.log(np.maximum(s[0] * area, 1e-300) / np.maximum(p[0], 1e-300)) \
-                    - np.log(np.maximum(renderer_model(mu, albedo, radius, chord), 1e-300))
+                    - np.log(np.maximum(renderer_model(mu, albedo, radius, chord, eta), 1e-300))
                 good = np.flatnonzero(ok)
                 # Held beyond the last bin with light (before the first: every walk has light there).
                 log_q[k, j, 1 + r] = np.interp(np.arange(n_d), good, q[good])
@@ -165,21 +173,23 @@ def load_curvature_correction() -> dict:
     return load_table(CORRECTION_TABLE)
 
 
-def log_correction_table(r_lu, kappa_lu, mus, albedo):
+def log_correction_table(r_lu, kappa_lu, mus, albedo, log_q=None, kappa=CORRECTION_KAPPA):
     """``(K, G, N, C)``: ``log Q`` at the distances ``r_lu`` ``(G, C)`` and curvatures ``kappa_lu`` ``(G, N, C)``
     (both in units of ``l_u``), for the incidence nodes ``mus`` (each one of :data:`CORRECTION_MUS`) and albedos
     ``(C,)``: linear in the albedo, bilinear in (``kappa l_u``, ``d / l_u``) on the table's nodes, held beyond them.
-    Differentiable in ``albedo`` and the coordinates."""
+    Differentiable in ``albedo`` and the coordinates. ``log_q``: another table (default the shipped index-matched
+    one; :mod:`jaxsss.render.dielectric_correction`) on the curvature nodes ``kappa``, the same elsewhere."""
     from jaxsss.render.exit_distance import node_rows
     from jaxsss.render.passage import piecewise_linear
 
-    rows = node_rows(load_curvature_correction()["log_q"], CORRECTION_MUS, CORRECTION_ALBEDO, mus, albedo,
+    log_q = load_curvature_correction()["log_q"] if log_q is None else log_q
+    rows = node_rows(log_q, CORRECTION_MUS, CORRECTION_ALBEDO, mus, albedo,
                      "curvature_correction (transport-corrected curvature ratio)")  # (K, C, Nk, D)
     # Linear in d / l_u at every curvature node: (G, K, C, Nk) -> (Nk, G, 1, K, C).
     by_d = piecewise_linear(r_lu[:, None, :, None], CORRECTION_D, jnp.moveaxis(rows, 3, 0))
     by_d = jnp.moveaxis(by_d, 3, 0)[:, :, None]
     # Then in kappa l_u: (G, N, K, C) -> (K, G, N, C).
-    q = piecewise_linear(kappa_lu[:, :, None, :], CORRECTION_KAPPA, by_d)
+    q = piecewise_linear(kappa_lu[:, :, None, :], kappa, by_d)
     return jnp.moveaxis(q, 2, 0)
 
 

@@ -131,18 +131,18 @@ class Prepared(ReflectingPoints):
                     g = 0.0 if medium.g is None else medium.g
                     irradiance = irradiance * interaction_probability(
                         self.light_chord, medium.sigma_a + medium.sigma_s_prime / (1.0 - g))
-            index_matched = ("chandrasekhar", "distance", "anisotropic") + MARCHED_EXITS
-            if self.bssrdf_exit in index_matched and len(self.bssrdf_mus) > 1:
-                # Index-matched: the node mix reflects the exact total at every incidence cosine (Chandrasekhar's;
-                # for g > 0 the HG medium's by adding-doubling, whose curve in mu is not the isotropic equivalent's:
-                # jaxsss.render.anisotropic_albedo). With the first order marched apart the same factor (the orders
+            if self.bssrdf_tables is not None and len(self.bssrdf_mus) > 1:
+                # The node mix reflects the exact total at every incidence cosine: Chandrasekhar's index-matched; for
+                # g > 0 the HG medium's by adding-doubling, whose curve in mu is not the isotropic equivalent's; behind
+                # a dielectric boundary the share the boundary lets in and the half-space sends back, concave in mu
+                # (jaxsss.render.anisotropic_albedo). With the first order marched apart the same factor (the orders
                 # >= 2's own, A - A_1, measured worse: docs/path_tracer.md, "The first order in the object's
                 # geometry").
                 albedo = jnp.broadcast_to(medium.alpha_prime, irradiance.shape[-1:])
-                g = 0.0 if self.bssrdf_tables is None else self.bssrdf_tables.g
-                irradiance = irradiance * albedo_correction(self.light_cos, self.bssrdf_mus, albedo, g)
+                g, eta = self.bssrdf_tables.g, self.bssrdf_tables.n
+                irradiance = irradiance * albedo_correction(self.light_cos, self.bssrdf_mus, albedo, g, eta)
                 if indirect is not None:
-                    indirect = indirect * albedo_correction(None, self.bssrdf_mus, albedo, g)
+                    indirect = indirect * albedo_correction(None, self.bssrdf_mus, albedo, g, eta)
                     if self.bssrdf_exit in MARCHED_EXITS:
                         # Diffuse light is not marched: the orders >= 2 carry its first order's share too.
                         indirect = indirect * diffuse_first_order_restore(albedo)
