@@ -69,7 +69,7 @@ their area-weighted mean normal, :attr:`jaxsss.render.renderer.Prepared.ent_norm
 from a table made once per image (:func:`white_kernel`, ``curvature=True``). The ratio is capped at a radius of
 6.7 ``l_u`` at an index-matched boundary (:data:`jaxsss.render.curvature.KAPPA_MAX_ZR`; the marched kernels lit from
 behind: 3.3 ``l_u`` with transport's far part, :mod:`jaxsss.render.curvature_correction`); behind a dielectric
-boundary at 3.3 ``l_u`` with transport's near part, ``min(Q, 1)`` of Fresnel walks
+boundary at 1.47 ``l_u`` with transport's near part, ``min(Q, 1)`` of Fresnel walks
 (:mod:`jaxsss.render.dielectric_correction`). The dipole kernel stays flat (it is the pre-issue-17 renderer).
 
 Passage (``"white*"``). A half-space takes in all the light that enters it; on a curved or thin part light entering
@@ -180,7 +180,7 @@ CURVATURE_WHY = ("the surface's curvature per pair (jaxsss.render.curvature: a c
 per pair) and the uncollided passage (always on: 1 where a light's refracted ray never leaves the object)."""
 DIELECTRIC_WHY = ("behind the dielectric boundary the nodes' mix reflects the exact directional albedo, concave in the "
                   "cosine (jaxsss.render.anisotropic_albedo, adding-doubling), and the curvature ratio reaches spheres "
-                  "of 3.3 l_u with transport's near part (jaxsss.render.dielectric_correction, Fresnel walks)")
+                  "of 1.47 l_u with transport's near part (jaxsss.render.dielectric_correction, Fresnel walks)")
 """What the plan adds for the white kernels at ``eta != 1``."""
 WHITE_DENSITY = 2.0
 """The white kernels' irradiance samples per ``pi l_u^2`` (the paper's dipole: 1; the scene's ``density`` multiplies
@@ -1163,8 +1163,8 @@ def _curvature_table(kernel: WhiteKernel, medium: Medium, mus: tuple, transport:
     """:attr:`WhiteKernel.curvature` for ``kernel``'s profiles of ``medium`` at incidence cosines ``mus``.
     ``transport`` (the marched kernels' orders >= 2): the diffusion ratio times its transport correction ``Q``, capped
     at the correction table's smallest sphere (:mod:`jaxsss.render.curvature_correction`). Behind a dielectric
-    boundary (a concrete relative index ``n != 1``, every order): the same cap, times ``min(Q, 1)`` of the Fresnel walks
-    (:mod:`jaxsss.render.dielectric_correction`)."""
+    boundary (a concrete relative index ``n != 1``, every order): capped at the Fresnel table's smallest sphere, times
+    ``min(Q, 1)`` of its walks (:mod:`jaxsss.render.dielectric_correction`)."""
     from jaxsss.render.curvature_correction import KAPPA_MAX_MARCHED, log_correction_table
     from jaxsss.render.dielectric_correction import KAPPA_MAX_DIELECTRIC, dielectric_log_correction_table
 

@@ -5,7 +5,7 @@ At a dielectric boundary (``eta != 1``) the white kernels hold every order of sc
 diffusion's (:mod:`jaxsss.render.curvature`: the dipole with Kelvin's image on a sphere over the plane, at the
 boundary's ``A``, the source at the refracted depth). It was capped at a radius of ``6.7 l_u``
 (:data:`jaxsss.render.curvature.KAPPA_MAX_ZR`), a knob chosen on images; under a sky at ``eta`` 1.33-1.4 that cap
-left the red of chicken1 on a 20 mm sphere (3-5 ``l_u`` in radius) 14% dark in sum, and lifting it alone made the
+left the red of chicken1 on a sphere of radius 20 mm (3.3 ``l_u``) 14% dark in sum, and lifting it alone made the
 spheres too bright (docs/path_tracer.md, "Held out under the sky at a dielectric boundary").
 
 This module measures what the ratio misses, as :mod:`jaxsss.render.curvature_correction` does at ``eta = 1``:
@@ -15,14 +15,15 @@ This module measures what the ratio misses, as :mod:`jaxsss.render.curvature_cor
 ``C_MC`` a Fresnel walk's exitance at chord ``d`` on a sphere over the half-space's (every order >= 1;
 :func:`jaxsss.render.walk.pencil_beam_walk` with ``eta``), ``C_Kelvin`` the diffusion ratio with no cap but the
 chord's, ``K`` the cut beam's share (:func:`jaxsss.render.curvature_correction.renderer_model` at ``eta``). Tabulated
-per incidence node (1, 0.5, 0.1, cosines outside), albedo, sphere radius (3.3-25 ``l_u``) and chord bin at the
-relative indices :data:`DIELECTRIC_ETAS`, linear in ``eta`` between them and held beyond.
+per incidence node (1, 0.5, 0.1, cosines outside), albedo, sphere radius (:data:`DIELECTRIC_RADII`, 1.47-25 ``l_u``)
+and chord bin at the relative indices :data:`DIELECTRIC_ETAS`, linear in ``eta`` between them and held beyond.
 
 Where it is used: the white kernels at ``eta != 1`` take the ratio to the table's smallest sphere
-(:data:`jaxsss.render.curvature_correction.KAPPA_MAX_MARCHED`) and multiply it by ``min(Q, 1)``, the near part: there
-transport takes light away from the ratio at a few transport lengths from the entry (Q 0.83-0.9 at 4-6 ``l_u`` on
-a sphere of 3.3 ``l_u``). The far part (``Q > 1``, light converging on the far side) is left out, as from the light's
-side at ``eta = 1``: without an exit azimuth about the entry it puts the light where the eye sees the terminator.
+(:data:`KAPPA_MAX_DIELECTRIC`) and multiply it by ``min(Q, 1)``, the near part: there transport takes light away from
+the ratio at a few transport lengths from the entry (``Q`` 0.85 at 2-4 ``l_u`` on a sphere of 4.94 ``l_u`` at 1.4,
+albedo 0.97). The far part (``Q > 1``, light converging on the far side: 1.4 at 6-8 ``l_u`` there) is left out, as
+from the light's side at ``eta = 1``: without an exit azimuth about the entry it puts the light where the eye sees the
+terminator. Measured on seven sky scenes in docs/path_tracer.md ("At a dielectric boundary").
 
 ``python -m jaxsss.render.dielectric_correction --regenerate`` remakes ``data/dielectric_correction.npz``
 (:data:`DIELECTRIC_PHOTONS` photons per walk, about 12 minutes per ``eta`` on one core).
@@ -60,7 +61,8 @@ DIELECTRIC_PHOTONS = 200_000
 in bins of 10^3-10^5 photons."""
 DIELECTRIC_RADII = CORRECTION_RADII + tuple(round(3.3 * 1.224**k, 2) for k in (-1, -2, -3, -4))
 """Sphere radii of the walks, transport lengths: the index-matched table's (24.9 down to 3.3) and four smaller ones
-at the same ratio (2.7, 2.2, 1.8, 1.47): a 20 mm sphere of chicken1 is 1.6 ``l_u`` in radius in red."""
+at the same ratio (2.7, 2.2, 1.8, 1.47): a teapot's handle and spout are that curved (its sums under a sky at 1.4 went
+from 0.971 / 0.950 / 0.958 to 0.989 / 0.963 / 0.965 with them)."""
 DIELECTRIC_KAPPA = (0.0,) + tuple(1.0 / a for a in DIELECTRIC_RADII)
 """Curvature nodes ``kappa l_u`` (0: the plane; linear between, held beyond ``1 / 1.47``)."""
 KAPPA_MAX_DIELECTRIC = DIELECTRIC_KAPPA[-1]
