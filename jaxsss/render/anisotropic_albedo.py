@@ -209,24 +209,27 @@ def albedo_cosines(eta: float = 1.0) -> np.ndarray:
     mixes, sorted. A caller that samples the curve and interpolates it keeps them."""
     eta = float(eta)
     if eta == 1.0:
+        return _node_cosines(1.0)
+    return np.unique(np.concatenate([_node_cosines(node) for node, _ in _eta_bracket(eta)]))
+
+
+def _node_cosines(eta: float) -> np.ndarray:
+    """The outside cosines of a table's escaping quadrature cosines at the node ``eta`` (1 or one of
+    :data:`ETA_NODES`)."""
+    if eta == 1.0:
         return np.asarray(load_anisotropic_albedo()["mu"])
-    return np.unique(np.concatenate([_escaping_share(0.0, node)[0] for node, _ in _eta_bracket(eta)]))
+    nu_c = np.sqrt(1.0 - 1.0 / eta**2)
+    nu = nu_c + load_dielectric_albedo()["t"] * (1.0 - nu_c)
+    # Snell: the cosine outside of light that leaves along nu.
+    return np.sqrt(np.maximum(1.0 - eta**2 * (1.0 - nu**2), 0.0))
 
 
 def _escaping_share(g: float, eta: float) -> tuple[np.ndarray, np.ndarray]:
-    """``(mu, B)``: the outside cosines of a table's escaping quadrature cosines at the node ``eta`` (1 or one of
-    :data:`ETA_NODES`) and ``B`` ``(X, M)`` there, linear in ``g`` (concrete)."""
-    if eta == 1.0:
-        tab = load_anisotropic_albedo()
-        rows, mu = tab["A"], tab["mu"]
-    else:
-        tab = load_dielectric_albedo()
-        rows = tab["B"][:, ETA_NODES.index(eta)]
-        nu_c = np.sqrt(1.0 - 1.0 / eta**2)
-        nu = nu_c + tab["t"] * (1.0 - nu_c)
-        # Snell: the cosine outside of light that leaves along nu.
-        mu = np.sqrt(np.maximum(1.0 - eta**2 * (1.0 - nu**2), 0.0))
-    return mu, np.apply_along_axis(lambda col: np.interp(g, tab["g"], col), 0, rows)
+    """``(mu, B)``: :func:`_node_cosines` at the node ``eta`` and ``B`` ``(X, M)`` there (``A`` at 1), linear in ``g``
+    (concrete)."""
+    tab = load_anisotropic_albedo() if eta == 1.0 else load_dielectric_albedo()
+    rows = tab["A"] if eta == 1.0 else tab["B"][:, ETA_NODES.index(eta)]
+    return _node_cosines(eta), np.apply_along_axis(lambda col: np.interp(g, tab["g"], col), 0, rows)
 
 
 def dielectric_directional_albedo(mu, alpha_prime, g: float, eta: float):

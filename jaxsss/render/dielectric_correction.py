@@ -123,7 +123,7 @@ def main(argv=None) -> int:
         photons=DIELECTRIC_PHOTONS,
         description="The transport correction of the white kernels' curvature ratio behind a dielectric boundary "
                     "(jaxsss.render.dielectric_correction).",
-        photons_help="photons per walk (11 spheres and a half-space per node and eta)",
+        photons_help="photons per walk (15 spheres and a half-space per node and eta)",
         load=load_dielectric_correction,
         refit=lambda tab: {"log_q": np.stack([fit_curvature_correction(s, p, float(e), DIELECTRIC_RADII)
                                               for s, p, e in zip(tab["sphere"], tab["plane"], tab["eta"])])},

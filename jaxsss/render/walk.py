@@ -158,13 +158,15 @@ def fresnel_walk(rng: np.random.Generator, pos: np.ndarray, d: np.ndarray, w: np
     boundary hit from inside a photon leaves with ``1 - F`` of its weight (``F`` from inside, relative index ``1 /
     eta``; tallied after at least ``min_order`` interactions: ``tally(payload, exit_point, direction, weight)``,
     ``direction`` inside) and is reflected with ``F`` (total internal reflection: all), a new free path from the
-    boundary (memoryless). ``payload`` ``(N,)`` rides with each photon (None: zeros)."""
+    boundary (memoryless). ``payload`` ``(N,)`` rides with each photon (None: its first flight's length, as
+    :func:`walk_photons`)."""
     from jaxsss.fresnel import fresnel_unpolarised
 
     order = np.zeros(len(w), dtype=np.int64)
-    payload = np.zeros(len(w)) if payload is None else payload
     while len(w):
-        new = pos - np.log(rng.random(len(w)))[:, None] * d
+        step = -np.log(rng.random(len(w)))
+        payload = step if payload is None else payload
+        new = pos + step[:, None] * d
         cross = new[:, 2] > 0.0 if centre is None else np.einsum("ij,ij->i", new - centre, new - centre) > radius**2
         p, v, wc, oc, pc = pos[cross], d[cross], w[cross], order[cross], payload[cross]
         hit, normal = _crossing(p, v, centre, radius)
