@@ -2,7 +2,9 @@
 entered, and what the exit's azimuth would change.
 
 A point light on an index-matched isotropic sphere (``eta = 1``, ``g = 0``: the scenes whose first order the renderer
-marches, :mod:`jaxsss.render.first_order`; its kernels then hold the orders >= 2). The walk is independent of the
+marches, :mod:`jaxsss.render.first_order`; its kernels then hold the orders >= 2), and on the same spheres behind a
+smooth dielectric boundary (``eta = 1.4``: every order, Fresnel at every crossing; the kernels keep the exit's current
+there, :mod:`jaxsss.render.dielectric_current`). The walk is independent of the
 renderer: photons leave the light into the cone that the sphere subtends, enter where they hit it, and scatter
 analogue (isotropic, absorption by weight, roulette below a weight of 1e-3) until they leave; the light that leaves
 after two or more interactions is tallied
@@ -18,7 +20,9 @@ after two or more interactions is tallied
   the walk's ``A1`` makes of the camera's view at the renderer's shaded points, exitance-weighted per band: below 1
   where the camera looks against the flow (from the light's side, at the terminator). ``current_factor`` is the
   renderer's own: ``1 + current / radiance`` of its orders >= 2 summed per band, with the plan made to keep the
-  exit's current (:mod:`jaxsss.render.exit_current`; both signs, before the renderer keeps the positive part).
+  exit's current (:mod:`jaxsss.render.exit_current`; both signs, before the renderer keeps the positive part at ``eta
+  = 1``; behind the dielectric boundary the renderer keeps both). ``radiance_ratio`` is what the two make of the
+  exitance's ratio towards the camera: ``exitance_ratio * current_factor / camera_factor``.
 
 Rows: one per scene, channel and light band; ``error`` is ``|renderer / walk - 1|`` of the band's exitance; seconds:
 the walk's (NumPy; a diagnostic against transport, not a speed comparison: the renderer's exitance rows are summed
@@ -37,7 +41,7 @@ from pathlib import Path
 import numpy as np
 
 from benchmarks._harness import make_row, parse_args, write_results
-from jaxsss.render.walk import walk_photons
+from jaxsss.render.walk import fresnel_walk, walk_photons
 
 NAME = "sphere_transport"
 REFERENCES = Path(__file__).resolve().parents[1] / "tests" / "export" / "references"
@@ -45,9 +49,13 @@ SCENES = {"skin1, 20 mm sphere": ("skin1_sphere.toml", None, None),
           "skin1, 8 mm sphere": ("skin1_sphere.toml", 8.0, None),
           "skin1, 20 mm sphere, lit from behind": ("skin1_sphere.toml", None, (70.0, 90.0, 40.0)),
           "skin1, 8 mm sphere, lit from behind": ("skin1_sphere.toml", 8.0, (28.0, 36.0, 16.0)),
-          "chicken1, 20 mm sphere": ("chicken1_sphere.toml", None, None)}
-"""Scene file (the path-traced reference's), the sphere's radius in mm and the point light's position in mm (None:
-the file's). The committed references' camera sees the terminator from the light's side; lit from behind, it sees it
+          "chicken1, 20 mm sphere": ("chicken1_sphere.toml", None, None),
+          "skin1, 20 mm sphere, eta 1.4": ("skin1_sphere.toml", None, None, 1.4),
+          "chicken1, 20 mm sphere, eta 1.4": ("chicken1_sphere.toml", None, None, 1.4)}
+"""Scene file (the path-traced reference's), the sphere's radius in mm, the point light's position in mm (None:
+the file's) and, optionally, the relative index of a smooth dielectric boundary (the walk then tallies every order, and
+the renderer keeps the exit's current of :mod:`jaxsss.render.dielectric_current`; no path tracer can connect a point
+light through that boundary, so this walk is the check). The committed references' camera sees the terminator from the light's side; lit from behind, it sees it
 from the dark side, along the light's flow. chicken1's sphere is only 3.3 / 5.7 / 11 transport lengths in radius
 (beyond the curvature cap in red), where the exit current of docs/path_tracer.md overshot."""
 LIGHT_EDGES = np.array([-1.0, -0.5, -0.3, -0.1, 0.1, 0.3, 0.5, 0.7, 0.9, 1.0])
@@ -57,7 +65,7 @@ exitance changes several-fold near the terminator, and the shaded points are not
 ENTRY_EDGES = np.array([0.0, 0.2, 0.4, 0.7, 1.0])
 MU_EDGES = np.linspace(0.0, 1.0, 11)
 PHOTONS, QUICK_PHOTONS = 1_000_000, 100_000
-METRIC = "|renderer / walk - 1|, orders >= 2 exitance in the light-cos band"
+METRIC = "|renderer / walk - 1|, orders >= 2 exitance in the light-cos band (every order at eta != 1)"
 
 
 def _frame(x, light):
@@ -90,12 +98,14 @@ def light_bands(pos, radius: float, light):
 
 
 def sphere_walk(sigma_a: float, sigma_s: float, radius: float, light, intensity: float, photons: int, seed: int = 0,
-                min_order: int = 2) -> dict:
+                min_order: int = 2, eta: float = 1.0) -> dict:
     """The walk (module docstring) on a sphere of ``radius`` mm at the origin under a point light at ``light`` (mm) of
     ``intensity`` W/sr: ``exitance`` ``(F, E)`` W/mm^2 by fine light bin (:data:`FINE_EDGES`) and entry bin, and
     ``harmonic`` ``(B, M, 2)`` (light, light times ``cos phi``) by light band and exit cosine
     (:func:`jaxsss.render.walk.walk_photons`); ``min_order`` 0 tallies every photon (for the tests: without absorption
-    every photon that enters leaves)."""
+    every photon that enters leaves). ``eta != 1``: a smooth dielectric boundary (:func:`jaxsss.render.walk.fresnel_walk`:
+    each photon enters refracted with the weight ``1 - F``; the light that leaves is what crosses the boundary, binned
+    by its cosine outside), ``min_order`` at least 1."""
     rng = np.random.default_rng(seed)
     light = np.asarray(light, dtype=float)
     sigma_t, albedo = sigma_a + sigma_s, sigma_s / (sigma_a + sigma_s)
@@ -116,6 +126,14 @@ def sphere_walk(sigma_a: float, sigma_s: float, radius: float, light, intensity:
     pos = light + (-b[hit] - np.sqrt(disc[hit]))[:, None] * d[hit]
     d = d[hit]
     entry_cos = -np.sum(pos / radius * d, axis=1)
+    w = np.ones(len(d))
+    if eta != 1.0:
+        from jaxsss.fresnel import fresnel_unpolarised
+
+        # Snell and Fresnel at the entry.
+        cos_t = np.sqrt(1.0 - (1.0 - entry_cos**2) / eta**2)
+        d = d / eta + (entry_cos / eta - cos_t)[:, None] * (pos / radius)
+        w = 1.0 - fresnel_unpolarised(entry_cos, eta, xp=np)
     exit_light = np.zeros((len(FINE_EDGES) - 1, len(ENTRY_EDGES) - 1))
     harmonic = np.zeros((len(LIGHT_EDGES) - 1, len(MU_EDGES) - 1, 2))
 
@@ -123,26 +141,34 @@ def sphere_walk(sigma_a: float, sigma_s: float, radius: float, light, intensity:
         n, cos, flow = _frame(exit_point, light * sigma_t)  # mean free paths: the cosines do not change
         mu = np.clip(np.sum(n * direction, axis=1), 0.0, 1.0)
         along = direction - mu[:, None] * n
+        if eta != 1.0:  # Snell: the cosine outside (the azimuth is kept)
+            mu = np.sqrt(np.clip(1.0 - eta * eta * (1.0 - mu * mu), 0.0, 1.0))
         cos_phi = np.sum(along * flow, axis=1) / np.maximum(np.linalg.norm(along, axis=1), 1e-300)
         exit_light[:] += np.histogram2d(cos, entry, [FINE_EDGES, ENTRY_EDGES], weights=weight)[0]
         for i, f in enumerate((weight, weight * cos_phi)):
             harmonic[..., i] += np.histogram2d(cos, mu, [LIGHT_EDGES, MU_EDGES], weights=f)[0]
 
     # In mean free paths (sigma_t = 1), about the sphere's centre.
-    walk_photons(rng, pos * sigma_t, d, albedo, tally, centre=np.zeros(3), radius=radius * sigma_t,
-                 min_order=min_order, payload=entry_cos)
+    if eta == 1.0:
+        walk_photons(rng, pos * sigma_t, d, albedo, tally, centre=np.zeros(3), radius=radius * sigma_t,
+                     min_order=min_order, payload=entry_cos)
+    else:
+        fresnel_walk(rng, pos * sigma_t, d, w, albedo, eta, tally, centre=np.zeros(3), radius=radius * sigma_t,
+                     min_order=max(min_order, 1), payload=entry_cos)
     area = fine_areas(float(radius), tuple(float(x) for x in light))
     power = intensity * 2.0 * np.pi * (1.0 - cos_cone) / photons
     return {"exitance": exit_light * power / np.maximum(area, 1e-300)[:, None], "harmonic": harmonic,
             "area": area}
 
 
-def _scene(file: str, radius: float | None, position=None):
-    """The reference scene ``file`` with its sphere's ``radius`` (mm) and its light's ``position`` (mm) replaced (None:
-    kept): ``(scene, radius, light position, intensity)``."""
+def _scene(file: str, radius: float | None, position=None, eta: float | None = None):
+    """The reference scene ``file`` with its sphere's ``radius`` (mm), its light's ``position`` (mm) and its material's
+    ``eta`` replaced (None: kept): ``(scene, radius, light position, intensity)``."""
     from jaxsss.render.scene import parse_scene
 
     data = tomllib.loads((REFERENCES / file).read_text())
+    if eta is not None:
+        data["material"]["eta"] = float(eta)
     if radius is not None:
         data["mesh"]["radius"] = float(radius)
     light = data["light"][0]
@@ -162,8 +188,9 @@ def renderer_exitance(scene) -> dict:
 
     result = render(scene)
     state, medium = result.prepared.state, scene.material.medium
-    if state.first_order is None:
-        raise ValueError(f"{NAME}: the scene's plan does not march the first order (eta = 1, g = 0 needed)")
+    if state.first_order is None and state.bssrdf_exit != "refracted-current":
+        raise ValueError(f"{NAME}: the scene's plan neither marches the first order (eta = 1, g = 0) nor keeps the "
+                         f"exit's current behind a dielectric boundary (exit {state.bssrdf_exit!r})")
     k = len(state.bssrdf_mus)
     whole = np.asarray(state.exitance(medium))[:, :k].sum(axis=1)
     cos = np.asarray(state.light_cos)[:, 0]
@@ -213,8 +240,9 @@ def main(argv=None) -> int:
     args = parse_args(argv, __doc__.splitlines()[0])
     photons = QUICK_PHOTONS if args.quick else PHOTONS
     rows = []
-    for label, (file, radius, position) in SCENES.items():
-        scene, radius, light, intensity = _scene(file, radius, position)
+    for label, (file, radius, position, *rest) in SCENES.items():
+        eta = rest[0] if rest else 1.0
+        scene, radius, light, intensity = _scene(file, radius, position, eta)
         medium = scene.material.medium
         ren = renderer_exitance(scene)
         _, cos, _, band, inside = light_bands(ren["pos"], radius, light)
@@ -223,7 +251,8 @@ def main(argv=None) -> int:
             sa = float(np.broadcast_to(np.asarray(medium.sigma_a), (3,))[c])
             ss = float(np.broadcast_to(np.asarray(medium.sigma_s_prime), (3,))[c])
             t0 = time.perf_counter()
-            walk = sphere_walk(sa, ss, radius, light, intensity, photons, seed=17 + c)
+            walk = sphere_walk(sa, ss, radius, light, intensity, photons, seed=17 + c, min_order=2 if eta == 1.0 else 1,
+                               eta=eta)
             seconds = time.perf_counter() - t0
             factor = camera_factor(walk, radius, light, ren["pos"], ren["cos_o"], ren["to_eye"],
                                    ren["whole"][:, c])
@@ -239,21 +268,24 @@ def main(argv=None) -> int:
                 rows.append(make_row(
                     NAME, f"{label}, {'RGB'[c]}", f"cos to the light {LIGHT_EDGES[b]:+.1f}..{LIGHT_EDGES[b + 1]:+.1f}",
                     abs(ratio - 1.0), METRIC, seconds, None, channel="RGB"[c], l_u_mm=1.0 / (sa + ss),
-                    radius_mm=radius, light_band=[float(LIGHT_EDGES[b]), float(LIGHT_EDGES[b + 1])],
+                    radius_mm=radius, eta=eta, light_band=[float(LIGHT_EDGES[b]), float(LIGHT_EDGES[b + 1])],
                     exitance_ratio=ratio, walk_exitance=float(truth.sum() / sel.sum()),
                     entry_edges=ENTRY_EDGES.tolist(), walk_share_by_entry=(truth / truth.sum()).tolist(),
                     ratio_by_entry=[float(p / t) if t > 0 else None for p, t in zip(parts, truth)],
                     camera_factor=None if np.isnan(factor[b]) else float(factor[b]),
                     current_factor=float(1.0 + ren["current"][sel, c].sum() / ren["radiance"][sel, c].sum()),
+                    radiance_ratio=None if np.isnan(factor[b]) else float(
+                        ratio * (1.0 + ren["current"][sel, c].sum() / ren["radiance"][sel, c].sum()) / factor[b]),
                     shaded_points=int(sel.sum()), photons=photons))
                 r = rows[-1]
                 print(f"{label:20s} {'RGB'[c]} {r['setting']:30s} renderer/walk {ratio:.3f}  by entry cos "
                       + " ".join("  -  " if v is None else f"{v:.2f}" for v in r["ratio_by_entry"])
                       + f"  (walk shares {' '.join(f'{s:.2f}' for s in r['walk_share_by_entry'])})"
-                      + f"  camera factor {r['camera_factor']}, the renderer's current {r['current_factor']:.3f}",
+                      + f"  camera factor {r['camera_factor']}, the renderer's current {r['current_factor']:.3f}"
+                      + f", radiance {r['radiance_ratio']}",
                       flush=True)
     write_results(NAME, rows, args.out, quick=args.quick, connect=False,
-                  notes=[f"point light, eta 1, g 0; orders >= 2; {photons} photons per channel; entry bins "
+                  notes=[f"point light, g 0; eta 1: orders >= 2, else every order; {photons} photons per channel; entry bins "
                          f"{ENTRY_EDGES.tolist()}; renderer: render(scene) defaults"],
                   title="renderer vs a walk on the whole sphere: orders >= 2 exitance by the light's cosine")
     _plot(rows, args.out, args.tag)

@@ -92,7 +92,9 @@ The exit's current (exit model ``"multiple-current"``, kept by the scene plan fo
 light leaves brighter along its flow over the surface, away from where it entered. The sums carry each node's
 current too, three rows of ``a(d / l_u)`` times the pair's tangential direction, which leave by ``t_o Y(mu_o)``
 where the view looks along the flow (:mod:`jaxsss.render.exit_current`). With it the curvature ratio's far field is
-corrected by transport (:mod:`jaxsss.render.curvature_correction`).
+corrected by transport (:mod:`jaxsss.render.curvature_correction`). Behind a dielectric boundary (exit model
+``"refracted-current"``, kept by the plan for every light): every order's exitance leaves by the refracted exit and its
+current by ``t_o Y(mu_o)`` of the Fresnel walks' table, with both signs (:mod:`jaxsss.render.dielectric_current`).
 
 Which kernel a scene gets is the scene plan's decision (:func:`choose_bssrdf`): ``white-oblique`` for every ``g <
 FORWARD_G`` and ``eta`` in the family's range, the dipole with its reason otherwise (``g >= FORWARD_G``, ``eta`` or
@@ -766,9 +768,9 @@ class WhiteKernel(eqx.Module):
         """``(P, K, C)`` -> ``(P, R K, C)`` (:attr:`rows_per_node` ``R``): each node's ``v``, then ``c v``
         (:meth:`_amplitude`), then its current ``v a t`` per component (:meth:`_current`); unchanged without the
         split."""
-        if not self.split:
+        if not self.split and self.exit_current is None:
             return v
-        rows = [v, self._amplitude(delta, normals) * v]
+        rows = [v, self._amplitude(delta, normals) * v] if self.split else [v]
         if self.exit_current is not None:
             current = self._current(delta, sources, normals)
             rows += [v * current[:, i] for i in range(3)]
@@ -780,15 +782,16 @@ class WhiteKernel(eqx.Module):
         the amplitude ``c`` of :meth:`_amplitude`. Each ``v_k`` is used once: with the split's two uses XLA computed
         the whole pair twice (skin1's far sum took 1.8x as long)."""
         k = v.shape[1]
-        if not self.split:
+        if not self.split and self.exit_current is None:
             return jnp.sum(v * weights, axis=1)
-        w = weights[:, :k] + self._amplitude(delta, normals) * weights[:, k:2 * k]
+        w = weights[:, :k] + self._amplitude(delta, normals) * weights[:, k:2 * k] if self.split else weights[:, :k]
         if self.exit_current is None:
             return jnp.sum(v * w, axis=1)
         current = self._current(delta, sources, normals)
         # The current's rows, weighted by the view's tangential direction: a t . t_o Y_k; kept apart ((P, 2, C)) for
         # the sign of their sum per shaded point (current_radiance).
-        wc = sum(current[:, i] * weights[:, (2 + i) * k:(3 + i) * k] for i in range(3))
+        first = 1 + int(self.split)
+        wc = sum(current[:, i] * weights[:, (first + i) * k:(first + 1 + i) * k] for i in range(3))
         return jnp.stack([jnp.sum(v * w, axis=1), jnp.sum(v * wc, axis=1)], axis=1)
 
     def rows_radiance(self, rows, weights):
@@ -797,7 +800,7 @@ class WhiteKernel(eqx.Module):
         per pair."""
         if self.exit_current is None:
             return jnp.sum(rows * weights, axis=1)
-        return row_parts(rows, weights, rows.shape[1] // self.rows_per_node)
+        return row_parts(rows, weights, (1 + int(self.split)) * (rows.shape[1] // self.rows_per_node))
 
     def sources(self, flux):
         """What the sums gather per entity, from its flux: with a shift, ``(E, 4, K, C)`` incident flux ``F_k`` and
@@ -962,7 +965,7 @@ class WhiteKernel(eqx.Module):
             sigma_t_prime, table = self.exit_split
             c = amplitude_at(table, r[:, None, None] * sigma_t_prime)
             return jnp.concatenate([jnp.sum(f, axis=0), jnp.sum(c * f, axis=0)])
-        if self.exit_curved is not None:
+        if self.exit_curved is not None or self.exit_current is not None:
             # On a curved surface the disc leaves as on a plane (c = 0 within rho_0: jaxsss.render.exit_curvature),
             # and with no current (its light enters all around the shaded point: jaxsss.render.exit_current).
             return jnp.concatenate([jnp.sum(f, axis=0)] + [jnp.zeros_like(f[0])] * (self.rows_per_node - 1))
@@ -973,7 +976,7 @@ class WhiteKernel(eqx.Module):
         per row of :meth:`weighted_disc` (:attr:`rows_per_node` ``R``: then the second exit's parts, and the
         current's, which are 0)."""
         wd = self.weighted_disc(rho0)
-        if not self.split:
+        if self.rows_per_node == 1:
             return spread * wd
         k = spread.shape[1]
         return jnp.concatenate([spread * wd[i * k:(i + 1) * k] for i in range(self.rows_per_node)], axis=1)
@@ -1043,9 +1046,10 @@ def white_kernel(medium: Medium, sources: WhiteSources, mus: tuple = (1.0,) + KE
     (:mod:`jaxsss.render.exit_distance`). ``first_order``: the profiles keep orders >= 2 only (the renderer marches
     the first in the object's geometry, :mod:`jaxsss.render.first_order`; :func:`multiple_orders`). ``exit_curved``
     (with ``first_order``): the sums carry each node's exitance and its part weighted by the curved-exit amplitude
-    ``c(kappa, d)`` of the pair (:mod:`jaxsss.render.exit_curvature`). ``exit_current`` (with ``exit_curved``): the
-    sums carry each node's current too, three rows of ``a(d)`` times the pair's tangential direction from the node's
-    entry (:mod:`jaxsss.render.exit_current`). ``curvature_transport`` (with ``curvature`` and ``first_order``): the
+    ``c(kappa, d)`` of the pair (:mod:`jaxsss.render.exit_curvature`). ``exit_current`` (with ``exit_curved``, or
+    alone behind a dielectric boundary): the sums carry each node's current too, three rows of ``a(d)`` times the
+    pair's tangential direction from the node's entry (:mod:`jaxsss.render.exit_current`; behind the boundary the
+    Fresnel walks' table, :mod:`jaxsss.render.dielectric_current`). ``curvature_transport`` (with ``curvature`` and ``first_order``): the
     curvature ratio times its transport correction ``Q``, capped at the correction table's smallest sphere
     (:mod:`jaxsss.render.curvature_correction`). ``oblique_azimuth`` (with ``curvature_transport`` and ``shift``): the
     oblique nodes' far pairs times ``G (1 + B cos phi)`` (:mod:`jaxsss.render.oblique_azimuth`)."""
@@ -1091,13 +1095,17 @@ def white_kernel(medium: Medium, sources: WhiteSources, mus: tuple = (1.0,) + KE
     if exit_current:
         from jaxsss.render.exit_current import current_amplitude
 
-        if not exit_curved:
-            raise ValueError("white_kernel(exit_current=True) needs exit_curved=True (the current's rows follow the "
-                             "curved exit's)")
+        dielectric = sources.n != 1.0
+        if not (exit_curved or dielectric) or (dielectric and (exit_split or first_order)):
+            raise ValueError("white_kernel(exit_current=True) needs exit_curved=True at eta = 1 (the current's rows "
+                             "follow the curved exit's) or, behind a dielectric boundary, every order and one exit "
+                             f"(first_order and exit_split False); got eta={sources.n!r}, exit_curved={exit_curved}, "
+                             f"first_order={first_order}, exit_split={exit_split}")
         c = kernel.sigma_s.shape
         kernel = eqx.tree_at(lambda k: k.exit_current, kernel,
                              (jnp.broadcast_to(medium.sigma_a + medium.sigma_s_prime, c),
-                              current_amplitude(jnp.broadcast_to(medium.alpha_prime, c))),
+                              current_amplitude(jnp.broadcast_to(medium.alpha_prime, c),
+                                                medium.eta if dielectric else None)),
                              is_leaf=lambda x: x is None)
     if curvature_transport and not (curvature and first_order):
         raise ValueError("white_kernel(curvature_transport=True) needs curvature=True and first_order=True (the "
@@ -1119,6 +1127,10 @@ def white_kernel(medium: Medium, sources: WhiteSources, mus: tuple = (1.0,) + KE
                        _curvature_table(kernel, medium, tuple(mus), curvature_transport, sources.n),
                        is_leaf=lambda x: x is None)
 
+
+CURRENT_EXITS = ("multiple-current", "refracted-current")
+"""The exit models whose sums carry the exit's current (:mod:`jaxsss.render.exit_current`): the index-matched orders >=
+2 with the curved exit, and every order behind a dielectric boundary with the refracted exit."""
 
 MULTIPLE_FLOOR = 0.02
 """Where the half-space's first order exceeds the tabulated profile (Monte Carlo noise and the tables' binning near
@@ -1263,6 +1275,8 @@ def exit_radiance_nodes(medium: Medium, exitance, cos_o, mus, model: str, azimut
     phi`` (:func:`jaxsss.render.exit_curvature.curved_exit_distribution`). ``"multiple-current"``: the same with
     ``exitance`` ``(Q, 5K, C)``, the current's three components last, leaving by ``t_o Y_k`` (``view_tangent`` ``(Q,
     3)``) where the view looks along the light's flow and not at all against it (:func:`current_radiance`).
+    ``"refracted-current"`` (a dielectric boundary): ``exitance`` ``(Q, 4K, C)``, the ``"refracted"`` rows and the
+    current's, the latter with both signs (:mod:`jaxsss.render.dielectric_current`).
     ``"anisotropic"`` (index-matched, ``g > 0``): the same with the Monte Carlo exit distribution of a
     forward-scattering half-space, which depends on the azimuth between the light's travel and the view
     (:func:`jaxsss.render.exit_direction.anisotropic_exit_distribution`; ``azimuth`` ``(Q, H - 1)`` its
@@ -1270,29 +1284,35 @@ def exit_radiance_nodes(medium: Medium, exitance, cos_o, mus, model: str, azimut
     :func:`refracted_exit_distribution`. ``"fresnel"``: the dipole renderer's Lambertian exit through the boundary,
     ``F_t(cos_o) sum_k M_k / (pi F_dt,ext)`` (:func:`jaxsss.render.radiance.exit_radiance`)."""
     w = exit_weights(medium, cos_o, mus, model, exitance.shape[1], exitance.shape[-1], azimuth, view_tangent)
-    if model == "multiple-current":
-        # The exitance's rows, then the current's along the flow only (jaxsss.render.exit_current).
-        parts = row_parts(exitance, w, len(mus))
-        return current_radiance(parts[:, 0], parts[:, 1])
+    if model in CURRENT_EXITS:
+        # The exitance's rows, then the current's (jaxsss.render.exit_current).
+        parts = row_parts(exitance, w, (2 if model == "multiple-current" else 1) * len(mus))
+        return current_radiance(parts[:, 0], parts[:, 1], along_only=model == "multiple-current")
     # The exit is linear in the nodes' exitance.
     return jnp.sum(exitance * w, axis=1)
 
 
-def row_parts(rows, weights, k: int):
-    """``(Q, 2, C)``: the ``"multiple-current"`` rows ``(Q, 5K, C)`` as radiance by their exit ``weights``, the
-    exitance's ``2K`` rows and the current's ``3K`` apart (:func:`current_radiance` keeps the second's positive
-    part)."""
-    return jnp.stack([jnp.sum(rows[:, :2 * k] * weights[:, :2 * k], axis=1),
-                      jnp.sum(rows[:, 2 * k:] * weights[:, 2 * k:], axis=1)], axis=1)
+def row_parts(rows, weights, j: int):
+    """``(Q, 2, C)``: the rows of an exit with the current (:data:`CURRENT_EXITS`; ``(Q, J + 3K, C)``) as radiance by
+    their exit ``weights``, the exitance's first ``j`` rows (``"multiple-current"``: ``2K``, ``"refracted-current"``:
+    ``K``) and the current's ``3K`` apart (:func:`current_radiance`)."""
+    return jnp.stack([jnp.sum(rows[:, :j] * weights[:, :j], axis=1),
+                      jnp.sum(rows[:, j:] * weights[:, j:], axis=1)], axis=1)
 
 
-def current_radiance(radiance, current):
+def current_radiance(radiance, current, along_only: bool = True):
     """``(Q, C)``: the exit's radiance ``radiance`` plus the current's ``current`` (both ``(Q, C)`` W/(mm^2 sr),
-    :func:`exit_weights` ``"multiple-current"``'s two parts) where it is positive, the view along the light's flow.
-    Against the flow the current is left out: there the kernels' exitance is short by about as much (a sphere's
-    terminator seen from the light's side, :mod:`jaxsss.render.exit_current`)."""
-    # L = L_M + max(t_o . J Y, 0).
-    return radiance + jnp.maximum(current, 0.0)
+    :func:`exit_weights`' two parts of an exit in :data:`CURRENT_EXITS`).
+
+    ``along_only`` (the index-matched ``"multiple-current"``): the current only where it is positive, the view along
+    the light's flow. Against the flow it is left out: there the kernels' exitance is short by about as much (a
+    sphere's terminator seen from the light's side, :mod:`jaxsss.render.exit_current`). Else (``"refracted-current"``,
+    behind a dielectric boundary) both signs, never below 0."""
+    if along_only:
+        # L = L_M + max(t_o . J Y, 0).
+        return radiance + jnp.maximum(current, 0.0)
+    # L = max(L_M + t_o . J Y, 0).
+    return jnp.maximum(radiance + current, 0.0)
 
 
 def exit_weights(medium: Medium, cos_o, mus, model: str, n_nodes: int, n_channels: int, azimuth=None,
@@ -1329,16 +1349,21 @@ def exit_weights(medium: Medium, cos_o, mus, model: str, n_nodes: int, n_channel
         from jaxsss.render.exit_curvature import curved_exit_distribution
 
         x = curved_exit_distribution(mu_o, mus, albedo)
-    elif model == "multiple-current":
+    elif model in CURRENT_EXITS:
         from jaxsss.render.exit_current import current_exit_distribution
         from jaxsss.render.exit_curvature import curved_exit_distribution
 
         if view_tangent is None:
-            raise ValueError("exit_weights(model='multiple-current') needs view_tangent=(Q, 3), the unit tangential "
-                             "part of the direction to the eye")
-        y = current_exit_distribution(mu_o, mus, albedo)  # (Q, K, C)
-        x = jnp.concatenate([curved_exit_distribution(mu_o, mus, albedo)]
-                            + [view_tangent[:, i, None, None] * y for i in range(3)], axis=1)
+            raise ValueError(f"exit_weights(model={model!r}) needs view_tangent=(Q, 3), the unit tangential part of the "
+                             "direction to the eye")
+        if model == "multiple-current":
+            y = current_exit_distribution(mu_o, mus, albedo)  # (Q, K, C)
+            exit_rows = curved_exit_distribution(mu_o, mus, albedo)
+        else:  # behind a dielectric boundary: every order, by the refracted exit
+            eta = jnp.asarray(medium.eta)
+            y = current_exit_distribution(mu_o, mus, albedo, eta)
+            exit_rows = refracted_exit_distribution(mu_o, jnp.asarray(mus), albedo, eta)
+        x = jnp.concatenate([exit_rows] + [view_tangent[:, i, None, None] * y for i in range(3)], axis=1)
     else:
         x = exit_distribution(mu_o, jnp.asarray(mus), albedo)
     # Exit by Chandrasekhar's reflection function, node by node.

@@ -34,6 +34,10 @@ views that look along its flow, together with the curvature ratio's far field co
 (:meth:`jaxsss.render.renderer.Prepared.light_sides`). Forced on for lights on the camera's side, the clamped current
 changed the committed images by 0 to 1.2% in sum; the image's sums take 1.7-1.9x as long with it.
 
+Behind a dielectric boundary the white kernels hold every order and leave by the refracted exit; their current comes
+from Fresnel walks (``eta`` as the last argument of :func:`current_amplitude` and :func:`current_exit_distribution`;
+the table and why both signs are kept there: :mod:`jaxsss.render.dielectric_current`).
+
 ``python -m jaxsss.render.exit_current --regenerate`` remakes ``data/exit_current.npz``.
 """
 
@@ -64,11 +68,13 @@ CURRENT_PHOTONS = 500_000
 CURRENT_TABLE = Path(__file__).resolve().parent / "data" / "exit_current.npz"
 
 
-def _tally(albedo: float, mu_i: float, photons: int, seed: int) -> np.ndarray:
-    """``(4, D, B)``: the orders >= 2's light per photon by distance from the entry (:data:`CURRENT_D_EDGES`) and exit
-    cosine (:data:`CURRENT_MU_EDGES`) in the half-space, and the same weighted by ``e . u`` (``e``: the unit
-    tangential exit direction, ``u``: the unit direction away from the entry), by ``e . t`` (``t = +x``: the light's
-    travel) and by ``u . t``."""
+def _tally(albedo: float, mu_i: float, photons: int, seed: int, eta: float = 1.0) -> np.ndarray:
+    """``(4, D, B)``: the light per photon by distance from the entry (:data:`CURRENT_D_EDGES`) and exit cosine
+    (:data:`CURRENT_MU_EDGES`; outside the boundary) in the half-space, and the same weighted by ``e . u`` (``e``: the
+    unit tangential exit direction, ``u``: the unit direction away from the entry), by ``e . t`` (``t = +x``: the
+    light's travel) and by ``u . t``. Index-matched (``eta = 1``): the orders >= 2 (the renderer marches the first).
+    Behind a dielectric boundary: every order (:func:`jaxsss.render.walk.pencil_beam_walk` with ``eta``), binned by
+    the cosine outside (Snell keeps the azimuth)."""
     from jaxsss.render.walk import pencil_beam_walk
 
     h = np.zeros((4, len(CURRENT_D_EDGES) - 1, len(CURRENT_MU_EDGES) - 1))
@@ -77,11 +83,14 @@ def _tally(albedo: float, mu_i: float, photons: int, seed: int) -> np.ndarray:
         radial = exit_point[:, :2] / np.maximum(np.linalg.norm(exit_point[:, :2], axis=1, keepdims=True), 1e-300)
         along = direction[:, :2] / np.maximum(np.linalg.norm(direction[:, :2], axis=1, keepdims=True), 1e-300)
         bins = [CURRENT_D_EDGES, CURRENT_MU_EDGES]
-        at = (np.linalg.norm(exit_point, axis=1), np.clip(direction[:, 2], 0.0, 1.0))
+        mu = np.clip(direction[:, 2], 0.0, 1.0)
+        # Snell: the cosine outside (0 past the critical angle, where nothing leaves).
+        mu_o = mu if eta == 1.0 else np.sqrt(np.clip(1.0 - eta * eta * (1.0 - mu * mu), 0.0, 1.0))
+        at = (np.linalg.norm(exit_point, axis=1), mu_o)
         for i, f in enumerate((1.0, np.sum(radial * along, axis=1), along[:, 0], radial[:, 0])):
             h[i] += np.histogram2d(*at, bins, weights=weight * f)[0]
 
-    pencil_beam_walk(albedo, mu_i, photons, seed, add, min_order=2)
+    pencil_beam_walk(albedo, mu_i, photons, seed, add, min_order=2 if eta == 1.0 else 1, eta=eta)
     return h / photons
 
 
@@ -116,22 +125,24 @@ def fit_exit_current(tallies: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     return amp, shape
 
 
-def generate_exit_current_table(photons: int = CURRENT_PHOTONS, seed: int = 53, progress: bool = True) -> dict:
-    """Run the half-space walks (:data:`CURRENT_MUS` x :data:`CURRENT_ALBEDO`) and return the table: ``a``, ``psi``,
-    the tallies and metadata."""
+def generate_exit_current_table(photons: int = CURRENT_PHOTONS, seed: int = 53, progress: bool = True,
+                                eta: float = 1.0) -> dict:
+    """Run the half-space walks (:data:`CURRENT_MUS` x :data:`CURRENT_ALBEDO`) at relative index ``eta`` and return
+    the table: ``a``, ``psi``, the tallies and metadata."""
     from tqdm.auto import tqdm
 
     t0 = time.perf_counter()
     tallies = np.zeros((len(CURRENT_MUS), len(CURRENT_ALBEDO), 4, len(CURRENT_D_EDGES) - 1,
                         len(CURRENT_MU_EDGES) - 1))
     nodes = [(k, j) for k in range(len(CURRENT_MUS)) for j in range(len(CURRENT_ALBEDO))]
-    for k, j in tqdm(nodes, desc="exit current", disable=not progress):
-        tallies[k, j] = _tally(CURRENT_ALBEDO[j], CURRENT_MUS[k], photons, seed + 100 * k + j)
+    for k, j in tqdm(nodes, desc=f"exit current, eta {eta:g}", disable=not progress):
+        tallies[k, j] = _tally(CURRENT_ALBEDO[j], CURRENT_MUS[k], photons, seed + 100 * k + j, eta)
     amp, shape = fit_exit_current(tallies)
+    orders = "orders >= 2" if eta == 1.0 else f"smooth dielectric boundary eta {eta:g}, orders >= 1"
     return {"ab": amp, "psi": shape, "tallies": tallies, "mus": np.asarray(CURRENT_MUS),
             "albedo": np.asarray(CURRENT_ALBEDO), "d": np.asarray(CURRENT_D), "d_edges": CURRENT_D_EDGES,
             "mu_edges": CURRENT_MU_EDGES, "photons": photons, "seed": seed, "seconds": time.perf_counter() - t0,
-            "source": "jaxsss.render.walk.pencil_beam_walk: index-matched isotropic half-space, orders >= 2"}
+            "source": f"jaxsss.render.walk.pencil_beam_walk: isotropic half-space, {orders}"}
 
 
 def load_exit_current_table() -> dict:
@@ -141,18 +152,35 @@ def load_exit_current_table() -> dict:
     return load_table(CURRENT_TABLE)
 
 
-def _node_rows(name: str, mus, albedo):
-    """``(K, C, ...)``: table ``name`` at the incidence nodes ``mus``, linear in the albedos ``(C,)``."""
+def _table(name: str, eta=None):
+    """``(U, A, ...)``: table ``name``: the index-matched table's orders >= 2 (``eta`` None), or every order behind a
+    dielectric boundary of relative index ``eta`` (a scalar, may be traced), linear in ``eta`` between the dielectric
+    table's nodes and held beyond."""
+    from jaxsss.render.dielectric_current import load_dielectric_current_table
+    from jaxsss.render.passage import node_interval
+
+    if eta is None:
+        return load_exit_current_table()[name]
+    tab = load_dielectric_current_table()
+    i, t = node_interval(jnp.asarray(eta), tab["eta"])
+    nodes = jnp.asarray(tab[name])
+    # Linear in eta between the nodes.
+    return (1.0 - t) * nodes[i] + t * nodes[i + 1]
+
+
+def _node_rows(name: str, mus, albedo, eta=None):
+    """``(K, C, ...)``: table ``name`` (:func:`_table`) at the incidence nodes ``mus``, linear in the albedos
+    ``(C,)``."""
     from jaxsss.render.exit_distance import node_rows
 
-    return node_rows(load_exit_current_table()[name], CURRENT_MUS, CURRENT_ALBEDO, mus, albedo,
-                     "exit_current (the exit's current)")
+    return node_rows(_table(name, eta), CURRENT_MUS, CURRENT_ALBEDO, mus, albedo, "exit_current (the exit's current)")
 
 
-def current_amplitude(albedo) -> jnp.ndarray:
+def current_amplitude(albedo, eta=None) -> jnp.ndarray:
     """``(D, C)``: the amplitude ``a`` (away from the entry) of the normal-incidence half-space at :data:`CURRENT_D`
-    for albedos ``(C,)`` (linear between the table's, held beyond; differentiable in ``albedo``)."""
-    return _node_rows("ab", (1.0,), albedo)[0, :, :, 0].T
+    for albedos ``(C,)`` (linear between the table's, held beyond; differentiable in ``albedo``): the index-matched
+    orders >= 2 (``eta`` None) or every order behind a boundary of relative index ``eta`` (:func:`_table`)."""
+    return _node_rows("ab", (1.0,), albedo, eta)[0, :, :, 0].T
 
 
 def current_amplitude_at(table, d_lu):
@@ -164,18 +192,26 @@ def current_amplitude_at(table, d_lu):
     return piecewise_linear(d_lu, CURRENT_D, table[:, None])
 
 
-def current_exit_distribution(mu_o, mus, albedo):
-    """``(Q, K, C)``: ``Y_k = X_2(mu_o | mu_k) psi_k(mu_o)`` for exit cosines ``mu_o`` ``(Q,)``, the incidence nodes
-    ``mus`` and albedos ``(C,)`` (:func:`jaxsss.render.bssrdf.multiple_exit_distribution` times the tabulated shape,
-    linear between the exit-cosine bins' centres, held beyond them). Differentiable in ``albedo``."""
-    from jaxsss.render.bssrdf import multiple_exit_distribution
+def current_exit_distribution(mu_o, mus, albedo, eta=None):
+    """``(Q, K, C)``: ``Y_k = X(mu_o | mu_k) psi_k(mu_o)`` for exit cosines ``mu_o`` ``(Q,)`` (outside), the
+    incidence nodes ``mus`` and albedos ``(C,)``: the tabulated shape (linear between the exit-cosine bins' centres,
+    held beyond them) times the kernels' own exit distribution, the orders >= 2's
+    (:func:`jaxsss.render.bssrdf.multiple_exit_distribution`) without ``eta``, else the refracted one behind a boundary
+    of relative index ``eta`` (:func:`jaxsss.render.bssrdf.refracted_exit_distribution`, the dielectric table).
+    Differentiable in ``albedo``."""
+    from jaxsss.render.bssrdf import (
+        multiple_exit_distribution,
+        refracted_exit_distribution,
+    )
     from jaxsss.render.passage import piecewise_linear
 
-    psi = jnp.moveaxis(_node_rows("psi", mus, albedo), -1, 0)  # (B, K, C)
+    psi = jnp.moveaxis(_node_rows("psi", mus, albedo, eta), -1, 0)  # (B, K, C)
     centres = 0.5 * (CURRENT_MU_EDGES[1:] + CURRENT_MU_EDGES[:-1])
     # Linear between the bins' centres: (Q, K, C).
     psi_q = piecewise_linear(jnp.asarray(mu_o)[:, None, None], centres, psi[:, None])
-    return multiple_exit_distribution(mu_o, jnp.asarray(mus), albedo) * psi_q
+    if eta is None:
+        return multiple_exit_distribution(mu_o, jnp.asarray(mus), albedo) * psi_q
+    return refracted_exit_distribution(mu_o, jnp.asarray(mus), albedo, eta) * psi_q
 
 
 def tangential_unit(v, normal):

@@ -142,7 +142,7 @@ def node_rows(table, table_mus, table_albedo, mus, albedo, what: str):
     missing = [m for m in mus if float(m) not in table_mus]
     if missing:
         raise ValueError(f"{what}: mus {missing} have no table; it has {tuple(table_mus)}")
-    tab = jnp.asarray(table[[tuple(table_mus).index(float(m)) for m in mus]])  # (K, A, ...)
+    tab = jnp.asarray(table[np.asarray([tuple(table_mus).index(float(m)) for m in mus])])  # (K, A, ...)
     i, t = node_interval(jnp.atleast_1d(albedo), table_albedo)
     t = t.reshape((1, -1) + (1,) * (tab.ndim - 2))
     # Linear in the albedo.

@@ -23,7 +23,7 @@ from tqdm import tqdm
 from jaxsss._config import render_jit, to_device
 from jaxsss.medium import Medium
 from jaxsss.render import radiance as rad
-from jaxsss.render.bssrdf import (albedo_correction, current_radiance, exit_model_for, exit_weights, incident_flux,
+from jaxsss.render.bssrdf import (CURRENT_EXITS, albedo_correction, current_radiance, exit_model_for, exit_weights, incident_flux,
                                   shift_reach, surface_tangents, white_kernel, white_tables)
 from jaxsss.render.passage import PASSAGE_FLOOR, cut_matters, interaction_probability, truncated_travel, view_chords
 from jaxsss.render.camera import camera_frame
@@ -42,7 +42,7 @@ __all__ = ["EXIT_ROWS", "MARCHED_EXITS", "Prepared", "assemble_prepared", "irrad
 
 MARCHED_EXITS = ("multiple", "multiple-curved", "multiple-current")
 """The white kernels' exit models with the first order marched apart (the kernel holds the orders >= 2)."""
-EXIT_ROWS = {"distance": 2, "multiple-curved": 2, "multiple-current": 5}
+EXIT_ROWS = {"distance": 2, "multiple-curved": 2, "multiple-current": 5, "refracted-current": 4}
 """The sums' rows per incidence node of each exit model (1 for the others): the exitance, a second exit's part, and
 the current's three components (:attr:`jaxsss.render.bssrdf.WhiteKernel.rows_per_node`)."""
 
@@ -170,7 +170,7 @@ class Prepared(ReflectingPoints):
                             exit_split=self.bssrdf_exit == "distance",
                             first_order=self.bssrdf_exit in MARCHED_EXITS,
                             exit_curved=self.bssrdf_exit in ("multiple-curved", "multiple-current"),
-                            exit_current=self.bssrdf_exit == "multiple-current",
+                            exit_current=self.bssrdf_exit in CURRENT_EXITS,
                             curvature_transport=(self.bssrdf_exit == "multiple-current"
                                                  and self.ent_normal is not None),
                             oblique_azimuth=(self.bssrdf_exit == "multiple-current" and self.ent_normal is not None
@@ -254,10 +254,10 @@ class Prepared(ReflectingPoints):
         if weights is None:
             return rad.exit_radiance(medium, self.exitance(medium), self.cos_o)
         out = self.exitance(medium, weights=weights)
-        if self.bssrdf_exit == "multiple-current":
-            # The sums keep the exitance's part and the current's apart, (Q, 2, C): the current is kept along the flow
-            # only (its sign per shaded point: jaxsss.render.bssrdf.current_radiance).
-            return current_radiance(out[:, 0], out[:, 1])
+        if self.bssrdf_exit in CURRENT_EXITS:
+            # The sums keep the exitance's part and the current's apart, (Q, 2, C): at eta = 1 the current is kept
+            # along the flow only (its sign per shaded point: jaxsss.render.bssrdf.current_radiance).
+            return current_radiance(out[:, 0], out[:, 1], along_only=self.bssrdf_exit == "multiple-current")
         return out
 
     def exitance_gradient(self, medium: Medium, *, near: bool = True):
@@ -357,6 +357,9 @@ def assemble_prepared(scene, plan: ScenePlan, samples, tree, shading: ShadingPoi
         # along the light's flow where the plan keeps the current (jaxsss.render.exit_current).
         exit_model = (("multiple-current" if plan.exit_current else "multiple-curved")
                       if shading.first_order is not None else exit_model_for(medium))
+        if exit_model == "refracted" and plan.exit_current:
+            # Behind a dielectric boundary: every order, with the exit's current of every light.
+            exit_model = "refracted-current"
         if exit_model == "multiple-current" and not all(plan.current_lights):
             # Lights on both sides of the object: those behind are summed with the current, the others apart.
             columns = np.repeat(plan.current_lights, [light_columns(light) for light in scene.lights])

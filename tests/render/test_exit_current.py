@@ -121,7 +121,7 @@ def test_the_current_rows_follow_the_flow_and_cancel_on_symmetric_pairs(kernels)
     weights = jnp.asarray(rng.uniform(-1.0, 1.0, size=(n, 5 * k, 2)))
     parts = np.asarray(current.pair(delta, current.sources(flux), normals, weights))
     assert parts.shape == (n, 2, 2) and current.value_shape(flux.shape, True) == (2, 2)
-    np.testing.assert_allclose(parts, np.asarray(row_parts(jnp.asarray(b), weights, k)), rtol=1e-10)
+    np.testing.assert_allclose(parts, np.asarray(row_parts(jnp.asarray(b), weights, 2 * k)), rtol=1e-10)
     np.testing.assert_allclose(parts.sum(axis=1), np.sum(b * np.asarray(weights), axis=1), rtol=1e-10)
     # The near field's disc carries no current.
     np.testing.assert_array_equal(np.asarray(current.weighted_disc(3.0))[2 * k:], 0.0)
