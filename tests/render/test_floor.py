@@ -38,13 +38,22 @@ def test_plan_of_a_lone_convex_sphere():
     ({"type": "directional", "direction": [0.0, -1.0, 0.0], "intensity": 1.0}, True),  # travelling towards the camera
     ({"type": "directional", "direction": [0.0, 1.0, 0.0], "intensity": 1.0}, False),  # from behind the camera
 ])
-def test_plan_says_where_the_exits_azimuth_matters(light, behind):
+@pytest.mark.parametrize("eta", [1.0, 1.3])
+def test_plan_says_where_the_exits_azimuth_matters(light, behind, eta):
     """The plan notes the exit's azimuth, and warns where a light is more than 90 degrees from the camera about the
     object (the camera then sees the terminator from its dark side, docs/path_tracer.md). There it keeps the exit's
-    current when the first order is marched (the current is the orders >= 2's), and says what it cannot fix."""
-    scene = _scene(lights=[light])
+    current when the first order is marched (the current is the orders >= 2's), and says what it cannot fix. Behind a
+    dielectric boundary it keeps every light's current, both signs, wherever the light is
+    (:mod:`jaxsss.render.dielectric_current`)."""
+    scene = _scene(lights=[light], material={"sigma_a": [0.05, 0.1, 0.2], "sigma_s_prime": [1.0, 1.5, 2.0],
+                                             "eta": eta})
     plan = make_plan(scene, bssrdf="auto")
     item = {i.name: i for i in plan.items}["exit azimuth"]
+    if eta != 1.0:
+        assert item.included and plan.exit_current and plan.current_lights == (True,) and not plan.first_order
+        assert "both signs" in item.reason and not item.reason.startswith("WARNING")
+        return
+    assert plan.first_order
     assert item.included == plan.exit_current == (behind and plan.first_order)
     assert item.reason.startswith("WARNING") == behind
     assert ("current is added" in item.reason) == item.included
