@@ -55,9 +55,10 @@ SCENES = {"skin1, 20 mm sphere": ("skin1_sphere.toml", None, None),
 """Scene file (the path-traced reference's), the sphere's radius in mm, the point light's position in mm (None:
 the file's) and, optionally, the relative index of a smooth dielectric boundary (the walk then tallies every order, and
 the renderer keeps the exit's current of :mod:`jaxsss.render.dielectric_current`; no path tracer can connect a point
-light through that boundary, so this walk is the check). The committed references' camera sees the terminator from the light's side; lit from behind, it sees it
-from the dark side, along the light's flow. chicken1's sphere is only 3.3 / 5.7 / 11 transport lengths in radius
-(beyond the curvature cap in red), where the exit current of docs/path_tracer.md overshot."""
+light through that boundary, so this walk is the check).
+The committed references' camera sees the terminator from the light's side; lit from behind, it sees it from the dark
+side, along the light's flow. chicken1's sphere is only 3.3 / 5.7 / 11 transport lengths in radius (beyond the curvature
+cap in red), where the exit current of docs/path_tracer.md overshot."""
 LIGHT_EDGES = np.array([-1.0, -0.5, -0.3, -0.1, 0.1, 0.3, 0.5, 0.7, 0.9, 1.0])
 FINE_EDGES = np.linspace(-1.0, 1.0, 81)
 """The walk's exitance is tallied on these finer bins and interpolated at each shaded point: within a band the
@@ -103,9 +104,9 @@ def sphere_walk(sigma_a: float, sigma_s: float, radius: float, light, intensity:
     ``intensity`` W/sr: ``exitance`` ``(F, E)`` W/mm^2 by fine light bin (:data:`FINE_EDGES`) and entry bin, and
     ``harmonic`` ``(B, M, 2)`` (light, light times ``cos phi``) by light band and exit cosine
     (:func:`jaxsss.render.walk.walk_photons`); ``min_order`` 0 tallies every photon (for the tests: without absorption
-    every photon that enters leaves). ``eta != 1``: a smooth dielectric boundary (:func:`jaxsss.render.walk.fresnel_walk`:
-    each photon enters refracted with the weight ``1 - F``; the light that leaves is what crosses the boundary, binned
-    by its cosine outside), ``min_order`` at least 1."""
+    every photon that enters leaves). ``eta != 1``: a smooth dielectric boundary
+    (:func:`jaxsss.render.walk.fresnel_walk`: each photon enters refracted with the weight ``1 - F``; the light that
+    leaves is what crosses the boundary, binned by its cosine outside), ``min_order`` at least 1."""
     rng = np.random.default_rng(seed)
     light = np.asarray(light, dtype=float)
     sigma_t, albedo = sigma_a + sigma_s, sigma_s / (sigma_a + sigma_s)
@@ -285,7 +286,8 @@ def main(argv=None) -> int:
                       + f", radiance {r['radiance_ratio']}",
                       flush=True)
     write_results(NAME, rows, args.out, quick=args.quick, connect=False,
-                  notes=[f"point light, g 0; eta 1: orders >= 2, else every order; {photons} photons per channel; entry bins "
+                  notes=[f"point light, g 0; eta 1: orders >= 2, else every order; {photons} photons per channel; "
+                         f"entry bins "
                          f"{ENTRY_EDGES.tolist()}; renderer: render(scene) defaults"],
                   title="renderer vs a walk on the whole sphere: orders >= 2 exitance by the light's cosine")
     _plot(rows, args.out, args.tag)

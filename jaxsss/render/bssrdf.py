@@ -1049,11 +1049,11 @@ def white_kernel(medium: Medium, sources: WhiteSources, mus: tuple = (1.0,) + KE
     ``c(kappa, d)`` of the pair (:mod:`jaxsss.render.exit_curvature`). ``exit_current`` (with ``exit_curved``, or
     alone behind a dielectric boundary): the sums carry each node's current too, three rows of ``a(d)`` times the
     pair's tangential direction from the node's entry (:mod:`jaxsss.render.exit_current`; behind the boundary the
-    Fresnel walks' table, :mod:`jaxsss.render.dielectric_current`). ``curvature_transport`` (with ``curvature`` and ``first_order``): the
-    curvature ratio times its transport correction ``Q``, capped at the correction table's smallest sphere
-    (:mod:`jaxsss.render.curvature_correction`). ``oblique_azimuth`` (with ``curvature_transport`` and ``shift``): the
-    oblique nodes' far pairs times ``G (1 + B cos phi)`` (:mod:`jaxsss.render.oblique_azimuth`)."""
-    from jaxsss.mc.white_family import load_white_family
+    Fresnel walks' table, :mod:`jaxsss.render.dielectric_current`). ``curvature_transport`` (with ``curvature`` and
+    ``first_order``): the curvature ratio times its transport correction ``Q``, capped at the correction table's
+    smallest sphere (:mod:`jaxsss.render.curvature_correction`). ``oblique_azimuth`` (with ``curvature_transport`` and
+    ``shift``): the oblique nodes' far pairs times ``G (1 + B cos phi)`` (:mod:`jaxsss.render.oblique_azimuth`).""" from
+    jaxsss.mc.white_family import load_white_family
     from jaxsss.render.passage import passage_cells, passage_loss_table
 
     load_white_family()
@@ -1354,8 +1354,8 @@ def exit_weights(medium: Medium, cos_o, mus, model: str, n_nodes: int, n_channel
         from jaxsss.render.exit_curvature import curved_exit_distribution
 
         if view_tangent is None:
-            raise ValueError(f"exit_weights(model={model!r}) needs view_tangent=(Q, 3), the unit tangential part of the "
-                             "direction to the eye")
+            raise ValueError(f"exit_weights(model={model!r}) needs view_tangent=(Q, 3), the unit tangential part "
+                             "of the direction to the eye")
         if model == "multiple-current":
             y = current_exit_distribution(mu_o, mus, albedo)  # (Q, K, C)
             exit_rows = curved_exit_distribution(mu_o, mus, albedo)

@@ -6,23 +6,23 @@ where the index-matched orders >= 2 are tabulated). Behind a dielectric boundary
 and leave by the refracted exit (:func:`jaxsss.render.bssrdf.refracted_exit_distribution`), which depends on the exit
 cosine only. Transport does not: on a point-lit sphere of chicken1 at ``eta = 1.4`` (radius 3.3 / 5.7 / 11 ``l_u``), a
 Fresnel walk's radiance towards the camera, which sees the terminator from the light's side and so looks against the
-flow, is 0.67-0.78 (red) and 0.45-0.72 (green) of its azimuthal mean in the bands from the terminator into the shadow.
+flow, is 0.67-0.79 (red) and 0.41-0.72 (green) of its azimuthal mean in the bands from the terminator into the shadow.
 Under a sky the same loss sits on the shadowed lower side of the held-out spheres, which were 10-30% too bright per
 pixel in red there (docs/path_tracer.md, "Behind a dielectric boundary: the exit's current").
 
 This module tabulates the current for those kernels as :mod:`jaxsss.render.exit_current` does at ``eta = 1``: a
 pencil beam on the half-space (:func:`jaxsss.render.walk.pencil_beam_walk` with ``eta``: Fresnel at the entry and at
-every crossing), every order, the radiance's first azimuthal harmonic about the entry fitted as ``a(d / l_u)
-psi(mu_o)`` per incidence node (1, 0.5, 0.1; cosines outside) and albedo, the exit cosine ``mu_o`` taken outside
-(Snell keeps the azimuth). The table holds the relative indices :data:`jaxsss.render.dielectric_correction.DIELECTRIC_ETAS`
-(1.1-1.6), linear in ``eta`` between them and held beyond (:func:`jaxsss.render.exit_current.current_amplitude` and
+every crossing), every order, the radiance's first azimuthal harmonic about the entry fitted as ``a(d / l_u) psi(mu_o)``
+per incidence node (1, 0.5, 0.1; cosines outside) and albedo, the exit cosine ``mu_o`` taken outside (Snell keeps the
+azimuth). The table holds the relative indices :data:`jaxsss.render.dielectric_correction.DIELECTRIC_ETAS` (1.1-1.6),
+linear in ``eta`` between them and held beyond (:func:`jaxsss.render.exit_current.current_amplitude` and
 :func:`~jaxsss.render.exit_current.current_exit_distribution` with ``eta``).
 
-The kernel keeps the current with both signs: ``L = max(L_M + t_o . J Y, 0)`` (:func:`jaxsss.render.bssrdf.current_radiance`
-with ``along_only=False``). At ``eta = 1`` the part against the flow is left out, because there the kernels' exitance
-is short by about as much; behind the boundary the curvature ratio's transport correction
-(:mod:`jaxsss.render.dielectric_correction`) has brought that exitance to within 5-12% of the walk's at the
-terminator, and the loss towards the eye is the larger error.
+The kernel keeps the current with both signs: ``L = max(L_M + t_o . J Y, 0)``
+(:func:`jaxsss.render.bssrdf.current_radiance` with ``along_only=False``). At ``eta = 1`` the part against the flow is
+left out, because there the kernels' exitance is short by about as much; behind the boundary the curvature ratio's
+transport correction (:mod:`jaxsss.render.dielectric_correction`) has brought that exitance to within 1-8% of the walk's
+at the terminator (0.65-0.88 of it deeper in the shadow), and the loss towards the eye is the larger error.
 
 ``python -m jaxsss.render.dielectric_current --regenerate`` remakes ``data/dielectric_current.npz``
 (:data:`jaxsss.render.exit_current.CURRENT_PHOTONS` photons per walk, about 2.5 minutes per ``eta`` on one core).

@@ -23,8 +23,8 @@ from tqdm import tqdm
 from jaxsss._config import render_jit, to_device
 from jaxsss.medium import Medium
 from jaxsss.render import radiance as rad
-from jaxsss.render.bssrdf import (CURRENT_EXITS, albedo_correction, current_radiance, exit_model_for, exit_weights, incident_flux,
-                                  shift_reach, surface_tangents, white_kernel, white_tables)
+from jaxsss.render.bssrdf import (CURRENT_EXITS, albedo_correction, current_radiance, exit_model_for, exit_weights,
+                                  incident_flux, shift_reach, surface_tangents, white_kernel, white_tables)
 from jaxsss.render.passage import PASSAGE_FLOOR, cut_matters, interaction_probability, truncated_travel, view_chords
 from jaxsss.render.camera import camera_frame
 from jaxsss.render.first_order import diffuse_first_order_restore, first_order_radiance

@@ -206,12 +206,12 @@ def test_skin1_at_a_dielectric_boundary_under_a_sky_against_its_path_traced_refe
     +2.1% and -6.0%). Since stop 52 (the node mix scaled to the exact albedo behind the boundary, and the curvature
     ratio with transport's near part, jaxsss.render.dielectric_correction): eta 1.3 mare_lit 0.045 / 0.038 / 0.036,
     sums 1.000 / 1.004 / 1.000; eta 1.4 0.038 / 0.032 / 0.030, sums 1.005 / 1.005 / 1.001 (4 x 4: 0.026 / 0.023 /
-    0.015 and 0.024 / 0.021 / 0.014). With the exit's current of every light, both signs (jaxsss.render.dielectric_current,
-    stop 53): eta 1.3 mare_lit 0.040 / 0.036 / 0.038, sums 0.993 / 1.000 / 0.998, 4 x 4 0.019 / 0.016 / 0.014; eta 1.4
-    0.031 / 0.029 / 0.032, sums 0.999 / 1.002 / 1.000, 4 x 4 0.015 / 0.014 / 0.013 (the shadowed lower side, bright
-    before). Bounds for both: the goal (mare_lit 5%, sums 3%); the 4 x 4 blocks within 2.2% (the current's gain: both
-    were above it before); blue's centre-to-limb change within 4 points (8-10 with the Lambertian exit); at eta 1.3
-    the dipole fails the sums."""
+    0.015 and 0.024 / 0.021 / 0.014). With the exit's current of every light, both signs
+    (jaxsss.render.dielectric_current, stop 53): eta 1.3 mare_lit 0.040 / 0.036 / 0.038, sums 0.993 / 1.000 / 0.998, 4 x
+    4 0.019 / 0.016 / 0.014; eta 1.4 0.031 / 0.029 / 0.032, sums 0.999 / 1.002 / 1.000, 4 x 4 0.015 / 0.014 / 0.013 (the
+    shadowed lower side, bright before). Bounds for both: the goal (mare_lit 5%, sums 3%); the 4 x 4 blocks within 2.2%
+    (the current's gain: both were above it before); blue's centre-to-limb change within 4 points (8-10 with the
+    Lambertian exit); at eta 1.3 the dipole fails the sums."""
     from jaxsss.export.compare import error_map
 
     scene, ref, coverage = reference(name)
