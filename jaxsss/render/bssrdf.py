@@ -1052,8 +1052,8 @@ def white_kernel(medium: Medium, sources: WhiteSources, mus: tuple = (1.0,) + KE
     Fresnel walks' table, :mod:`jaxsss.render.dielectric_current`). ``curvature_transport`` (with ``curvature`` and
     ``first_order``): the curvature ratio times its transport correction ``Q``, capped at the correction table's
     smallest sphere (:mod:`jaxsss.render.curvature_correction`). ``oblique_azimuth`` (with ``curvature_transport`` and
-    ``shift``): the oblique nodes' far pairs times ``G (1 + B cos phi)`` (:mod:`jaxsss.render.oblique_azimuth`).""" from
-    jaxsss.mc.white_family import load_white_family
+    ``shift``): the oblique nodes' far pairs times ``G (1 + B cos phi)`` (:mod:`jaxsss.render.oblique_azimuth`)."""
+    from jaxsss.mc.white_family import load_white_family
     from jaxsss.render.passage import passage_cells, passage_loss_table
 
     load_white_family()
