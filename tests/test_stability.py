@@ -192,6 +192,40 @@ def test_render_terms_values_gradients_and_float32(medium_inputs):
     assert np.max(np.abs(v32[resolved] / v64[resolved] - 1)) < 1e-4
 
 
+def _current_terms(q, shape: bool = True):
+    """The exit's current behind a dielectric boundary (jaxsss.render.dielectric_current) at ``q = (alpha', eta,
+    mu_o)``: the amplitude at every distance node and (``shape``) the exit shape at the three incidence nodes."""
+    from jaxsss.render.exit_current import current_amplitude, current_exit_distribution
+
+    albedo = q[0][None]
+    a = current_amplitude(albedo, q[1])[:, 0]
+    if not shape:
+        return a
+    y = current_exit_distribution(q[2][None], (1.0, 0.5, 0.1), albedo, q[1])[0, :, 0]
+    return jnp.concatenate([a, y])
+
+
+def test_dielectric_current_values_gradients_and_float32():
+    """alpha' over the grid (with 0 and 1), eta from just above 1 to 2.5 (beyond the table: held), exit cosines 0 to
+    1: values and gradients finite; in float32 the amplitude within 1e-6 of float64 [1.7e-7] and the exit shape (the
+    refracted exit distribution's Chandrasekhar H-function times the tabulated shape) within 1e-4 [3.1e-5], 1e-2 at a
+    grazing exit (mu_o = 1e-6, where the Fresnel transmittance 1 - F cancels [7.3e-3]), where they exceed 1e-12."""
+    x = np.stack(grid(ALPHA + [0.0, 1.0], [1.0001, 1.1, 1.35, 1.6, 2.5], [0.0, 1e-6, 0.5, 1.0]), axis=1)
+    terms = jax.jit(jax.vmap(_current_terms))
+    v = np.asarray(terms(jnp.asarray(x)))
+    assert np.all(np.isfinite(v))
+    grads = np.asarray(jax.jit(jax.vmap(jax.jacfwd(_current_terms)))(jnp.asarray(x)))
+    assert np.all(np.isfinite(grads)), np.argwhere(~np.isfinite(grads))[:5]
+    v32 = terms(jnp.asarray(x, dtype=jnp.float32))
+    assert v32.dtype == jnp.float32
+    error = np.abs(np.asarray(v32, dtype=np.float64) / np.where(np.abs(v) > 1e-12, v, 1.0) - 1.0)
+    error = np.where(np.abs(v) > 1e-12, error, 0.0)
+    n_a = len(np.asarray(_current_terms(jnp.asarray(x[0]), shape=False)))
+    grazing = x[:, 2] == 1e-6
+    assert np.max(error[:, :n_a]) < 1e-6, error[:, :n_a].max()
+    assert np.max(error[~grazing, n_a:]) < 1e-4 and np.max(error[grazing, n_a:]) < 1e-2, error[:, n_a:].max()
+
+
 # --- sigma_a = 0 (a non-absorbing medium, which Medium accepts) for every forward model of the fitting registry ---
 # The models are evaluated exactly as fits evaluate them (fitting.models.model_profiles, per incident photon).
 # Values and gradients in (sigma_a, sigma_s', eta) must be finite at sigma_a = 0, and d/d sigma_a must equal the

@@ -472,10 +472,11 @@ def chandrasekhar_h(mu, albedo):
     Explicit form (Chandrasekhar 1960, Radiative Transfer, Eq. V.1.43 specialised to isotropic scattering):
     ``ln H(mu) = -(mu / pi) int_0^{pi/2} ln(1 - a theta cot theta) / (cos^2 theta + mu^2 sin^2 theta) dtheta``,
     64-node Gauss-Legendre (within 1e-6 of the iterated integral equation for ``a <= 0.99``)."""
-    th = jnp.asarray(_H_TH)
-    w = jnp.asarray(_H_W)
     mu = jnp.asarray(mu)[..., None]
     a = jnp.asarray(albedo)[..., None]
+    # The quadrature in the albedo's dtype (float32 stays float32).
+    dtype = jnp.result_type(a, 0.0)
+    th, w = jnp.asarray(_H_TH, dtype), jnp.asarray(_H_W, dtype)
     # H-function, explicit integral form.
     f = jnp.log1p(-a * th / jnp.tan(th)) / (jnp.cos(th) ** 2 + mu * mu * jnp.sin(th) ** 2)
     return jnp.exp(-mu[..., 0] / jnp.pi * jnp.sum(w * f, axis=-1))
@@ -571,7 +572,8 @@ def exit_distribution(mu_o, mu_i, albedo):
     ``X = pi f_r / A(mu_i)`` with the directional albedo ``A(mu_i) = (a / 2) H(mu_i) int_0^1 H(mu) mu / (mu + mu_i)
     dmu``; ``a`` and ``H(mu_i)`` cancel, so ``X = H(mu_o) / (2 (mu_o + mu_i) int_0^1 H(mu) mu / (mu + mu_i) dmu)``.
     ``mu_o`` ``(Q,)``, ``mu_i`` ``(K,)``, ``albedo`` ``(C,)`` give ``(Q, K, C)``."""
-    t, w = jnp.asarray(_MU_T), jnp.asarray(_MU_W)
+    # The quadrature in the albedo's dtype (float32 stays float32).
+    t, w = (jnp.asarray(v, jnp.result_type(albedo, 0.0)) for v in (_MU_T, _MU_W))
     mu_i = jnp.asarray(mu_i)
     h_t = chandrasekhar_h(t[:, None], albedo)  # (T, C)
     norm = jnp.einsum("t,tc,kt->kc", w, h_t, t[None, :] / (t[None, :] + mu_i[:, None]))  # (K, C)
@@ -628,7 +630,8 @@ def refracted_exit_distribution(mu_o, mu_i, albedo, eta):
     def shape(mu):
         return _transmittance(eta, mu)[:, None, None] * exit_distribution(inside(mu), mu_k, albedo)
 
-    t, w = jnp.asarray(_MU_T), jnp.asarray(_MU_W)
+    # The quadrature in the albedos' dtype (float32 stays float32).
+    t, w = (jnp.asarray(v, jnp.result_type(albedo, 0.0)) for v in (_MU_T, _MU_W))
     # Renormalised to the exitance: int_0^1 F_t X 2 c dc, (K, C).
     norm = jnp.einsum("t,tkc->kc", 2.0 * w * t, shape(t))
     return shape(mu_o) / norm[None]

@@ -152,28 +152,29 @@ def load_exit_current_table() -> dict:
     return load_table(CURRENT_TABLE)
 
 
-def _table(name: str, eta=None):
+def _table(name: str, eta=None, dtype=None):
     """``(U, A, ...)``: table ``name``: the index-matched table's orders >= 2 (``eta`` None), or every order behind a
     dielectric boundary of relative index ``eta`` (a scalar, may be traced), linear in ``eta`` between the dielectric
-    table's nodes and held beyond."""
+    table's nodes and held beyond; in ``dtype`` (None: the table's)."""
     from jaxsss.render.dielectric_current import load_dielectric_current_table
     from jaxsss.render.passage import node_interval
 
     if eta is None:
-        return load_exit_current_table()[name]
+        return jnp.asarray(load_exit_current_table()[name], dtype)
     tab = load_dielectric_current_table()
-    i, t = node_interval(jnp.asarray(eta), tab["eta"])
-    nodes = jnp.asarray(tab[name])
+    nodes = jnp.asarray(tab[name], dtype)
+    i, t = node_interval(jnp.asarray(eta, nodes.dtype), tab["eta"])
     # Linear in eta between the nodes.
     return (1.0 - t) * nodes[i] + t * nodes[i + 1]
 
 
 def _node_rows(name: str, mus, albedo, eta=None):
-    """``(K, C, ...)``: table ``name`` (:func:`_table`) at the incidence nodes ``mus``, linear in the albedos
-    ``(C,)``."""
+    """``(K, C, ...)``: table ``name`` (:func:`_table`, in the albedos' dtype) at the incidence nodes ``mus``, linear
+    in the albedos ``(C,)``."""
     from jaxsss.render.exit_distance import node_rows
 
-    return node_rows(_table(name, eta), CURRENT_MUS, CURRENT_ALBEDO, mus, albedo, "exit_current (the exit's current)")
+    table = _table(name, eta, jnp.result_type(albedo, 0.0))
+    return node_rows(table, CURRENT_MUS, CURRENT_ALBEDO, mus, albedo, "exit_current (the exit's current)")
 
 
 def current_amplitude(albedo, eta=None) -> jnp.ndarray:
@@ -209,9 +210,10 @@ def current_exit_distribution(mu_o, mus, albedo, eta=None):
     centres = 0.5 * (CURRENT_MU_EDGES[1:] + CURRENT_MU_EDGES[:-1])
     # Linear between the bins' centres: (Q, K, C).
     psi_q = piecewise_linear(jnp.asarray(mu_o)[:, None, None], centres, psi[:, None])
+    nodes = jnp.asarray(mus, psi.dtype)
     if eta is None:
-        return multiple_exit_distribution(mu_o, jnp.asarray(mus), albedo) * psi_q
-    return refracted_exit_distribution(mu_o, jnp.asarray(mus), albedo, eta) * psi_q
+        return multiple_exit_distribution(mu_o, nodes, albedo) * psi_q
+    return refracted_exit_distribution(mu_o, nodes, albedo, eta) * psi_q
 
 
 def tangential_unit(v, normal):

@@ -322,7 +322,9 @@ def node_interval(v, nodes, xp=jnp):
     # The interval by counting the interior nodes at or below v: elementwise, so it fuses with its neighbours
     # (jnp.searchsorted's binary search took 12x as long on 6e5 values on the CPU).
     i = xp.zeros(xp.shape(v), xp.int32) + sum((v >= n).astype(xp.int32) for n in nodes[1:-1])
-    lo, hi = xp.asarray(nodes[:-1])[i], xp.asarray(nodes[1:])[i]
+    # The nodes in v's dtype (float32 values stay float32).
+    dtype = xp.result_type(v, 0.0)
+    lo, hi = xp.asarray(nodes[:-1], dtype=dtype)[i], xp.asarray(nodes[1:], dtype=dtype)[i]
     return i, (v - lo) / (hi - lo)
 
 
