@@ -41,6 +41,7 @@ from pathlib import Path
 import numpy as np
 
 from benchmarks._harness import make_row, parse_args, write_results
+from jaxsss.fresnel import snell_cosine
 from jaxsss.render.walk import fresnel_walk, walk_photons
 
 NAME = "sphere_transport"
@@ -129,11 +130,10 @@ def sphere_walk(sigma_a: float, sigma_s: float, radius: float, light, intensity:
     entry_cos = -np.sum(pos / radius * d, axis=1)
     w = np.ones(len(d))
     if eta != 1.0:
-        from jaxsss.fresnel import fresnel_unpolarised
+        from jaxsss.fresnel import fresnel_unpolarised, refract
 
         # Snell and Fresnel at the entry.
-        cos_t = np.sqrt(1.0 - (1.0 - entry_cos**2) / eta**2)
-        d = d / eta + (entry_cos / eta - cos_t)[:, None] * (pos / radius)
+        d = refract(d, pos / radius, entry_cos, snell_cosine(entry_cos, eta, xp=np)[0], eta, xp=np)
         w = 1.0 - fresnel_unpolarised(entry_cos, eta, xp=np)
     exit_light = np.zeros((len(FINE_EDGES) - 1, len(ENTRY_EDGES) - 1))
     harmonic = np.zeros((len(LIGHT_EDGES) - 1, len(MU_EDGES) - 1, 2))
@@ -143,7 +143,7 @@ def sphere_walk(sigma_a: float, sigma_s: float, radius: float, light, intensity:
         mu = np.clip(np.sum(n * direction, axis=1), 0.0, 1.0)
         along = direction - mu[:, None] * n
         if eta != 1.0:  # Snell: the cosine outside (the azimuth is kept)
-            mu = np.sqrt(np.clip(1.0 - eta * eta * (1.0 - mu * mu), 0.0, 1.0))
+            mu = snell_cosine(mu, 1.0 / eta, xp=np)[0]
         cos_phi = np.sum(along * flow, axis=1) / np.maximum(np.linalg.norm(along, axis=1), 1e-300)
         exit_light[:] += np.histogram2d(cos, entry, [FINE_EDGES, ENTRY_EDGES], weights=weight)[0]
         for i, f in enumerate((weight, weight * cos_phi)):

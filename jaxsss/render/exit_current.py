@@ -75,6 +75,7 @@ def _tally(albedo: float, mu_i: float, photons: int, seed: int, eta: float = 1.0
     light's travel) and by ``u . t``. Index-matched (``eta = 1``): the orders >= 2 (the renderer marches the first).
     Behind a dielectric boundary: every order (:func:`jaxsss.render.walk.pencil_beam_walk` with ``eta``), binned by
     the cosine outside (Snell keeps the azimuth)."""
+    from jaxsss.fresnel import snell_cosine
     from jaxsss.render.walk import pencil_beam_walk
 
     h = np.zeros((4, len(CURRENT_D_EDGES) - 1, len(CURRENT_MU_EDGES) - 1))
@@ -85,7 +86,7 @@ def _tally(albedo: float, mu_i: float, photons: int, seed: int, eta: float = 1.0
         bins = [CURRENT_D_EDGES, CURRENT_MU_EDGES]
         mu = np.clip(direction[:, 2], 0.0, 1.0)
         # Snell: the cosine outside (0 past the critical angle, where nothing leaves).
-        mu_o = mu if eta == 1.0 else np.sqrt(np.clip(1.0 - eta * eta * (1.0 - mu * mu), 0.0, 1.0))
+        mu_o = mu if eta == 1.0 else snell_cosine(mu, 1.0 / eta, xp=np)[0]
         at = (np.linalg.norm(exit_point, axis=1), mu_o)
         for i, f in enumerate((1.0, np.sum(radial * along, axis=1), along[:, 0], radial[:, 0])):
             h[i] += np.histogram2d(*at, bins, weights=weight * f)[0]
