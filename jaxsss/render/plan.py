@@ -201,7 +201,9 @@ def make_plan(scene, *, method: str | None = None, eps: float | None = None, cut
     current_lights = ()
     if bssrdf is not None:
         dielectric = kernel != "dipole" and float(np.max(np.asarray(medium.eta))) != 1.0
-        azimuth, current_lights = _dielectric_current(scene) if dielectric else _exit_azimuth(scene, first_order)
+        forced = _forced(settings.exit_current, "exit_current")
+        azimuth, current_lights = (_dielectric_current(scene, forced) if dielectric else
+                                   _exit_azimuth(scene, first_order, forced))
         if azimuth is not None:
             items.append(azimuth)
 
@@ -267,9 +269,10 @@ EXIT_AZIMUTH_BEHIND_DEG = 90.0
 see: the camera then looks at the terminator from the dark side, along the light's flow over the surface."""
 
 
-def _exit_azimuth(scene, first_order: bool) -> tuple[PlanItem | None, tuple]:
+def _exit_azimuth(scene, first_order: bool, forced=(None, "")) -> tuple[PlanItem | None, tuple]:
     """The plan's line on the exit's azimuth (None without a light that has a position or a direction), and per light
-    whether its light is summed with the exit's current (:attr:`ScenePlan.current_lights`).
+    whether its light is summed with the exit's current (:attr:`ScenePlan.current_lights`). ``forced``: the
+    ``[render].exit_current`` switch (:func:`_forced`); on, every light's current (it needs the first order marched).
 
     Transport leaves a surface brighter along the light's flow over it than against it (the first azimuthal harmonic
     of the exit radiance is 0.2-0.6 at a point-lit sphere's terminator). With a light on the camera's side the camera
@@ -282,6 +285,15 @@ def _exit_azimuth(scene, first_order: bool) -> tuple[PlanItem | None, tuple]:
     (chicken1 lit from the camera's side: 0.034 -> 0.156 per pixel in red). With lights on both sides the two are
     summed apart, each with its own kernel. The angle is the one between the camera and each light about the centre
     of the object's bounding box."""
+    on, why = forced
+    if on and not first_order:
+        raise ValueError("[render].exit_current = 'on' at eta = 1 needs the white kernel's first order marched in the "
+                         "object's geometry (eta = 1, g = 0, point, spot or directional lights, no texture); the plan "
+                         "does not march it for this scene (see `jaxsss render --explain`)")
+    if on is not None:
+        what = "every light's exit current, along the flow only (jaxsss.render.exit_current)" if on else \
+            "no exit current"
+        return PlanItem("exit azimuth", on, f"{why}: {what}"), tuple(on for _ in scene.lights)
     centre = np.asarray(scene.mesh.bounds, dtype=float).mean(axis=0)
     view = np.asarray(scene.camera.position, dtype=float) - centre
     angles = []
@@ -327,14 +339,44 @@ def _exit_azimuth(scene, first_order: bool) -> tuple[PlanItem | None, tuple]:
         tuple(behind)
 
 
-def _dielectric_current(scene) -> tuple[PlanItem, tuple]:
-    """The plan's line on the exit's azimuth behind a dielectric boundary (a white kernel, every order), and every
-    light summed with the exit's current (:attr:`ScenePlan.current_lights`; :mod:`jaxsss.render.dielectric_current`)."""
+EXIT_CURRENT_MAX_RADIUS = 30.0
+"""Behind a dielectric boundary the exit's current is kept for objects less than this many transport lengths ``l_u``
+(the largest of the channels') in radius, half the bounding box's smallest extent. The current's light lies in a band
+about each terminator and shadow edge, about ``l_d`` wide, where it is about ``l_u / l_d`` of the exitance: its share
+of the image goes as ``l_u / R``. Measured (the image with and without it, mean |relative change| per lit pixel, red):
+0.028 on skin1's 20 mm sphere under a sky (``R = 15 l_u``), 0.054-0.083 at 3-6 ``l_u``, 0.017 on the marble teapot
+(66 ``l_u``; 0.5% in its sums). Against Mitsuba under a sky at eta 1.4-1.5 it took skin1's sphere (15 ``l_u``) from
+0.024 to 0.015 per 4 x 4 bin in red, and marble's 20 mm sphere (44 ``l_u``) from 0.032 to 0.040: there the fitted
+current, made at 1-15 ``l_u`` from the entry, adds more error than it removes. The sums take 1.5-2.3x as long with it
+(the marble teapot at 512 x 512: pass 2 35-37 s without, 82-84 s with; docs/path_tracer.md, "The exit's current by
+the object's size")."""
+
+
+def _dielectric_current(scene, forced=(None, "")) -> tuple[PlanItem, tuple]:
+    """The plan's line on the exit's azimuth behind a dielectric boundary (a white kernel, every order), and per light
+    whether its light is summed with the exit's current (:attr:`ScenePlan.current_lights`;
+    :mod:`jaxsss.render.dielectric_current`): every light's for objects under :data:`EXIT_CURRENT_MAX_RADIUS`
+    transport lengths in radius, none above. ``forced``: the ``[render].exit_current`` switch (:func:`_forced`)."""
+    l_u = float(np.max(np.asarray(scene.material.medium.l_u)))
+    radius = 0.5 * float(np.min(scene.mesh.extents))
+    size = radius / l_u
+    on, why = forced
+    if on is None:
+        on = size < EXIT_CURRENT_MAX_RADIUS
+        why = (f"the object is {size:.3g} l_u in radius (half its smallest extent, {radius:.3g} mm; l_u = "
+               f"{l_u:.3g} mm) {'<' if on else '>='} {EXIT_CURRENT_MAX_RADIUS:g} "
+               "(jaxsss.render.plan.EXIT_CURRENT_MAX_RADIUS)")
+    if not on:
+        return PlanItem("exit azimuth", False,
+                        f"{why}: the exit's current is left out (its share of the image goes as l_u / radius: 1.7% per "
+                        "pixel and 0.5% in the sums on the 66 l_u marble teapot, whose sums take 2.3x as long with it; "
+                        "marble's 44 l_u sphere under a sky is closer to Mitsuba without it)"), \
+            tuple(False for _ in scene.lights)
     return (PlanItem("exit azimuth", True,
-                     "behind the dielectric boundary the light leaves brighter along its flow over the surface and "
-                     "darker against it: every light's exit current, both signs (jaxsss.render.dielectric_current, "
+                     f"{why}: behind the dielectric boundary the light leaves brighter along its flow over the surface "
+                     "and darker against it: every light's exit current, both signs (jaxsss.render.dielectric_current, "
                      "Fresnel walks; the shadowed side of spheres under a sky was 10-30% too bright per pixel without "
-                     "it; the sums take about 2x as long)"),
+                     "it; the sums take 1.5-2.3x as long)"),
             tuple(True for _ in scene.lights))
 
 

@@ -80,6 +80,8 @@ Schema (units: mm, 1/mm, degrees; "3 values" means ``[x, y, z]`` or ``[r, g, b]`
     single_scattering = "auto"   # auto | on | off (true / false mean on / off)
     indirect = "auto"         # auto | on | off: one bounce off the occluders and off the object itself
     shadows = "auto"
+    exit_current = "auto"     # auto | on | off: the exit's current, the light's flow over the surface (auto: the
+                              # plan's, by the object's size in transport lengths; jaxsss.render.plan)
     seed = 0                  # >= 0
 
     [output]
@@ -285,6 +287,7 @@ class RenderSettings:
     single_scattering: str = "auto"
     indirect: str = "auto"
     shadows: str = "auto"
+    exit_current: str = "auto"
     seed: int = 0
 
 

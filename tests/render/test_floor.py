@@ -67,6 +67,49 @@ def test_plan_says_where_the_exits_azimuth_matters(light, behind, eta):
     assert "exit azimuth" not in {i.name for i in make_plan(scene).items}
 
 
+@pytest.mark.parametrize("radius_in_l_u", [29.0, 31.0])
+def test_plan_keeps_the_dielectric_current_by_the_objects_size_in_transport_lengths(radius_in_l_u):
+    """Behind a dielectric boundary the exit's current is kept for objects under EXIT_CURRENT_MAX_RADIUS transport
+    lengths (the largest channel's l_u) in radius and left out above, for every light, and the line says why; the
+    ``[render].exit_current`` switch overrides it both ways."""
+    from jaxsss.render.plan import EXIT_CURRENT_MAX_RADIUS
+
+    material = {"sigma_a": [0.05, 0.1, 0.2], "sigma_s_prime": [0.95, 1.5, 2.0], "eta": 1.4}  # red: l_u = 1 mm
+    lights = [{"type": "point", "position": [-20.0, -25.0, 10.0], "intensity": 300.0},
+              {"type": "point", "position": [5.0, 40.0, 0.0], "intensity": 300.0}]
+    mesh = {"builtin": "sphere", "radius": radius_in_l_u, "subdivisions": 2}
+    kept = radius_in_l_u < EXIT_CURRENT_MAX_RADIUS
+    plan = make_plan(_scene(mesh=mesh, material=material, lights=lights), bssrdf="auto")
+    item = {i.name: i for i in plan.items}["exit azimuth"]
+    assert item.included == plan.exit_current == kept and plan.current_lights == (kept, kept)
+    assert f"{radius_in_l_u:.3g} l_u in radius" in item.reason and ("left out" in item.reason) == (not kept)
+    for switch in ("on", "off"):
+        forced = make_plan(_scene(mesh=mesh, material=material, lights=lights, render_opts={"exit_current": switch}),
+                           bssrdf="auto")
+        on = switch == "on"
+        assert forced.current_lights == (on, on) and f"forced {switch} by [render].exit_current" in \
+            {i.name: i for i in forced.items}["exit azimuth"].reason
+
+
+def test_the_exit_current_switch_at_an_index_matched_boundary():
+    """At eta = 1 the switch keeps (on) or leaves out (off) every light's current, on the camera's side or behind; on
+    needs the first order marched and says so where the plan does not march it (g != 0)."""
+    from jaxsss.render.scene import SceneError
+
+    material = {"sigma_a": [0.05, 0.1, 0.2], "sigma_s_prime": [1.0, 1.5, 2.0], "eta": 1.0}
+    lights = [{"type": "point", "position": [-20.0, -25.0, 10.0], "intensity": 300.0},  # beside the camera
+              {"type": "point", "position": [5.0, 40.0, 0.0], "intensity": 300.0}]  # behind the sphere
+    assert make_plan(_scene(material=material, lights=lights), bssrdf="auto").current_lights == (False, True)
+    for switch, kept in (("on", (True, True)), ("off", (False, False))):
+        plan = make_plan(_scene(material=material, lights=lights, render_opts={"exit_current": switch}), bssrdf="auto")
+        assert plan.first_order and plan.current_lights == kept and plan.exit_current == (switch == "on")
+    with pytest.raises(ValueError, match=r"exit_current = 'on' at eta = 1 needs .* first order"):
+        make_plan(_scene(material={**material, "g": 0.5}, lights=lights, render_opts={"exit_current": "on"}),
+                  bssrdf="auto")
+    with pytest.raises(SceneError, match="render.exit_current"):
+        _scene(render_opts={"exit_current": "sometimes"})
+
+
 def test_plan_switches_and_forced_settings():
     floor = [{"builtin": "slab", "width": 80.0, "depth": 80.0, "thickness": 1.0, "translate": [0.0, 0.0, -6.0]}]
     plan = make_plan(_scene(occluders=floor))
