@@ -7,6 +7,9 @@ The truth comes from outside: each target is a Mitsuba 3 volumetric path tracing
   under two (flagged).
 - ``skin1_sphere + zoom``: the same plus an 8-degree lens at the terminator on the camera's side
   (``skin1_sphere_zoom``): every channel's blur resolved.
+- ``skin1_sphere_env``: the same sphere behind a dielectric boundary (eta 1.4) under a sky with a soft sun: red's blur
+  resolved (4.6 pixels), and the sphere's brightness grows with ``l_d`` (light flows round it), which the start has
+  to get right (:data:`fitting.image_fit.RD_START_FINE`).
 
 Each case is fitted with the renderer's stated error against Mitsuba, ``model_error=fitting.RENDER_MODEL_ERROR``
 (its brightness level and its error per band of the cosine to the light, :mod:`fitting.discrepancy`), and with the
@@ -31,7 +34,8 @@ from benchmarks._harness import make_row, parse_args, write_results
 
 NAME = "fit_path_traced"
 REFERENCES = Path(__file__).resolve().parents[1] / "tests" / "export" / "references"
-CASES = {"skin1_sphere": ("skin1_sphere",), "skin1_sphere + zoom": ("skin1_sphere", "skin1_sphere_zoom")}
+CASES = {"skin1_sphere": ("skin1_sphere",), "skin1_sphere + zoom": ("skin1_sphere", "skin1_sphere_zoom"),
+         "skin1_sphere_env": ("skin1_sphere_env",)}
 PIXELS, QUICK_PIXELS = 1500, 256
 METRIC = "max |estimate / truth - 1| of sigma_a, sigma_s' over identifiable channels"
 

@@ -283,3 +283,38 @@ def test_a_new_process_loads_the_fits_programs_instead_of_tracing(two_views, mon
     # Other solver settings are another program (they are in the key), not the stored one.
     fit_image(scenes[1], targets[1], target_stderr=stderrs[1], max_pixels=64, bssrdf="dipole", rtol=1e-5)
     assert len(list(tmp_path.glob("image-solve-*.bin"))) == 2
+
+
+def test_the_start_takes_rd_between_the_grids_nodes():
+    """The start grid's ``Rd`` nodes are coarse (0.2, 0.5, 0.8, 0.95); with the residuals interpolated in ``Rd`` per
+    ``l_d`` candidate the start lands in the true basin. A sphere's brightness grows with ``l_d`` (light flows round
+    it: the sky-lit skin1 sphere's red is 17% brighter at twice its ``l_d``, 11-14% darker at 0.1-0.3 of it), so on the
+    grid alone a short ``l_d`` offsets a high ``Rd``: there the start was ``(0.5, 0.3 mm)`` for a truth of ``(0.41, 3.67
+    mm)``, and the solve ended on the short-``l_d`` plateau (docs/benchmarks.md, "fit_image from the sky-lit skin1
+    sphere"). Here a model image with that gain and a terminator blurred over ``l_d``; channel 0 has that truth,
+    channel 1 a grid node."""
+    from fitting.image_fit import LD_CANDIDATES_MM, RD_CANDIDATES, _grid_start
+
+    eta = 1.4
+    x = np.linspace(-4.0, 40.0, 60)[:, None]  # mm from the terminator
+
+    def image(theta):
+        rd, ld = (np.asarray(v) for v in jaxsss.to_rd_ld(jaxsss.Medium(np.exp(theta[:2]), np.exp(theta[2:]), eta)))
+        return rd * 0.5 * (1.0 + np.tanh(x / ld)) * (0.86 + 0.14 * (ld / 3.67) ** 1.2)
+
+    truth = jaxsss.from_rd_ld(np.array([0.41, 0.5]), np.array([3.67, 1.0]), eta).medium
+    target = image(np.log(np.concatenate([np.asarray(truth.sigma_a), np.asarray(truth.sigma_s_prime)])))
+    costs = []
+
+    def residuals(theta, args):
+        r = (image(np.asarray(theta)) - target) / target.mean(axis=0)
+        costs.append(np.sum(r**2, axis=0))
+        return r.reshape(-1)
+
+    sa, ss = _grid_start(residuals, None, eta, 2)
+    assert len(costs) == len(RD_CANDIDATES) * len(LD_CANDIDATES_MM)  # no more image evaluations than the grid's
+    # The grid's own best for channel 0 is the wrong l_d (what the start took before).
+    assert np.tile(LD_CANDIDATES_MM, len(RD_CANDIDATES))[int(np.argmin(np.array(costs)[:, 0]))] != 3.0
+    rd, ld = (np.asarray(v) for v in jaxsss.to_rd_ld(jaxsss.Medium(sa, ss, eta)))
+    np.testing.assert_allclose(ld, [3.0, 1.0], rtol=1e-6)  # the l_d candidates next to the truth
+    np.testing.assert_allclose(rd, [0.41, 0.5], atol=0.015)
