@@ -70,6 +70,10 @@ def fit_case(views, max_pixels: int, model_error) -> dict:
     return {"fit": fit, "rel": rel, "rel_se": rel_se, "z": np.abs(rel) / rel_se, "ok": ok, "seconds": seconds}
 
 
+Y_LIMIT = 0.3
+"""The error plot's axis, +-30%: estimates beyond it are drawn as arrows at the edge with their value."""
+
+
 def plot_errors(rows: list[dict], path: Path) -> Path:
     """Each coefficient's relative error with +-2 standard error bars, one panel per case, the statements side by
     side: the bars cross 0 where the standard errors are honest."""
@@ -91,6 +95,14 @@ def plot_errors(rows: list[dict], path: Path) -> Path:
                 m = ok == flag
                 ax.errorbar(x[m], rel[m], yerr=2 * np.abs(se[m]), fmt="o", color=f"C{j}", mfc=face, capsize=3,
                             label=f"{r['method']}" + ("" if flag else " (not identifiable)") if m.any() else None)
+            # Estimates off the axis (a flagged channel on a plateau): an arrow at the edge with the value.
+            for xi, v in zip(x, rel):
+                if abs(v) > Y_LIMIT:
+                    edge = np.sign(v) * 0.93 * Y_LIMIT
+                    ax.annotate(f"{v:+.0%}", (xi, edge), xytext=(xi, edge - np.sign(v) * 0.12 * Y_LIMIT),
+                                fontsize=7, color=f"C{j}", ha="center",
+                                arrowprops={"arrowstyle": "->", "color": f"C{j}"})
+        ax.set_ylim(-Y_LIMIT, Y_LIMIT)
         ax.axhline(0.0, color="k", lw=0.8)
         ax.axhspan(-0.05, 0.05, color="0.9", zorder=0)
         ax.set_xticks(range(6), labels, rotation=30, fontsize=8)
