@@ -199,13 +199,20 @@ def make_plan(scene, *, method: str | None = None, eps: float | None = None, cut
     else:
         see_through = False
     current_lights = ()
+    forced = _forced(settings.exit_current, "exit_current")
     if bssrdf is not None:
+        if forced[0] and kernel == "dipole":
+            raise ValueError("[render].exit_current = 'on' needs a white kernel (the exit's current is tabulated for "
+                             "the white Monte Carlo profiles); this scene's kernel is 'dipole' (`jaxsss render "
+                             "--explain` says why)")
         dielectric = kernel != "dipole" and float(np.max(np.asarray(medium.eta))) != 1.0
-        forced = _forced(settings.exit_current, "exit_current")
         azimuth, current_lights = (_dielectric_current(scene, forced) if dielectric else
                                    _exit_azimuth(scene, first_order, forced))
         if azimuth is not None:
             items.append(azimuth)
+    elif forced[0] is not None:
+        items.append(PlanItem("exit azimuth", False, f"{forced[1]}, which does not apply here: this evaluation has "
+                                                     "its own transport model, not the profile kernels"))
 
     specular = scene.material.specular_roughness is not None
     items.append(PlanItem("specular highlights", specular,

@@ -108,6 +108,12 @@ def test_the_exit_current_switch_at_an_index_matched_boundary():
                   bssrdf="auto")
     with pytest.raises(SceneError, match="render.exit_current"):
         _scene(render_opts={"exit_current": "sometimes"})
+    # The dipole kernel has no current; methods with their own transport model say the switch does not apply.
+    with pytest.raises(ValueError, match="exit_current = 'on' needs a white kernel"):
+        make_plan(_scene(material=material, render_opts={"exit_current": "on"}), bssrdf="dipole")
+    own = make_plan(_scene(material=material, render_opts={"exit_current": "on"}))
+    item = {i.name: i for i in own.items}["exit azimuth"]
+    assert not item.included and "does not apply" in item.reason and own.current_lights == ()
 
 
 def test_plan_switches_and_forced_settings():
