@@ -199,19 +199,17 @@ def make_plan(scene, *, method: str | None = None, eps: float | None = None, cut
     else:
         see_through = False
     current_lights = ()
-    forced = _forced(settings.exit_current, "exit_current")
+    forced, forced_why = _forced(settings.exit_current, "exit_current")
     if bssrdf is not None:
-        if forced[0] and kernel == "dipole":
-            raise ValueError("[render].exit_current = 'on' needs a white kernel (the exit's current is tabulated for "
-                             "the white Monte Carlo profiles); this scene's kernel is 'dipole' (`jaxsss render "
-                             "--explain` says why)")
         dielectric = kernel != "dipole" and float(np.max(np.asarray(medium.eta))) != 1.0
-        azimuth, current_lights = (_dielectric_current(scene, forced) if dielectric else
-                                   _exit_azimuth(scene, first_order, forced))
+        if forced is not None:
+            azimuth, current_lights = _forced_current(scene, forced, forced_why, kernel, first_order)
+        else:
+            azimuth, current_lights = _dielectric_current(scene) if dielectric else _exit_azimuth(scene, first_order)
         if azimuth is not None:
             items.append(azimuth)
-    elif forced[0] is not None:
-        items.append(PlanItem("exit azimuth", False, f"{forced[1]}, which does not apply here: this evaluation has "
+    elif forced is not None:
+        items.append(PlanItem("exit azimuth", False, f"{forced_why}, which does not apply here: this evaluation has "
                                                      "its own transport model, not the profile kernels"))
 
     specular = scene.material.specular_roughness is not None
@@ -276,10 +274,28 @@ EXIT_AZIMUTH_BEHIND_DEG = 90.0
 see: the camera then looks at the terminator from the dark side, along the light's flow over the surface."""
 
 
-def _exit_azimuth(scene, first_order: bool, forced=(None, "")) -> tuple[PlanItem | None, tuple]:
+def _forced_current(scene, on: bool, why: str, kernel: str, first_order: bool) -> tuple[PlanItem, tuple]:
+    """The plan's line on the exit's azimuth and :attr:`ScenePlan.current_lights` under the ``[render].exit_current``
+    switch (``why``: :func:`_forced`'s reason): every light's current or none. On needs a white kernel, and at ``eta =
+    1`` its first order marched (the index-matched current is the orders >= 2's); both are refused by name."""
+    if on and kernel == "dipole":
+        raise ValueError("[render].exit_current = 'on' needs a white kernel (the exit's current is tabulated for the "
+                         "white Monte Carlo profiles); this scene's kernel is 'dipole' (`jaxsss render --explain` says "
+                         "why)")
+    dielectric = float(np.max(np.asarray(scene.material.medium.eta))) != 1.0
+    if on and not dielectric and not first_order:
+        raise ValueError("[render].exit_current = 'on' at eta = 1 needs the white kernel's first order marched in the "
+                         "object's geometry (eta = 1, g = 0, point, spot or directional lights, no texture); the plan "
+                         "does not march it for this scene (see `jaxsss render --explain`)")
+    what = ("every light's exit current" + (", both signs (jaxsss.render.dielectric_current)" if dielectric else
+                                            ", along the flow only (jaxsss.render.exit_current)")) if on else \
+        "the exit's current is left out"
+    return PlanItem("exit azimuth", on, f"{why}: {what}"), tuple(on for _ in scene.lights)
+
+
+def _exit_azimuth(scene, first_order: bool) -> tuple[PlanItem | None, tuple]:
     """The plan's line on the exit's azimuth (None without a light that has a position or a direction), and per light
-    whether its light is summed with the exit's current (:attr:`ScenePlan.current_lights`). ``forced``: the
-    ``[render].exit_current`` switch (:func:`_forced`); on, every light's current (it needs the first order marched).
+    whether its light is summed with the exit's current (:attr:`ScenePlan.current_lights`).
 
     Transport leaves a surface brighter along the light's flow over it than against it (the first azimuthal harmonic
     of the exit radiance is 0.2-0.6 at a point-lit sphere's terminator). With a light on the camera's side the camera
@@ -292,15 +308,6 @@ def _exit_azimuth(scene, first_order: bool, forced=(None, "")) -> tuple[PlanItem
     (chicken1 lit from the camera's side: 0.034 -> 0.156 per pixel in red). With lights on both sides the two are
     summed apart, each with its own kernel. The angle is the one between the camera and each light about the centre
     of the object's bounding box."""
-    on, why = forced
-    if on and not first_order:
-        raise ValueError("[render].exit_current = 'on' at eta = 1 needs the white kernel's first order marched in the "
-                         "object's geometry (eta = 1, g = 0, point, spot or directional lights, no texture); the plan "
-                         "does not march it for this scene (see `jaxsss render --explain`)")
-    if on is not None:
-        what = "every light's exit current, along the flow only (jaxsss.render.exit_current)" if on else \
-            "no exit current"
-        return PlanItem("exit azimuth", on, f"{why}: {what}"), tuple(on for _ in scene.lights)
     centre = np.asarray(scene.mesh.bounds, dtype=float).mean(axis=0)
     view = np.asarray(scene.camera.position, dtype=float) - centre
     angles = []
@@ -359,20 +366,17 @@ current, made at 1-15 ``l_u`` from the entry, adds more error than it removes. T
 the object's size")."""
 
 
-def _dielectric_current(scene, forced=(None, "")) -> tuple[PlanItem, tuple]:
+def _dielectric_current(scene) -> tuple[PlanItem, tuple]:
     """The plan's line on the exit's azimuth behind a dielectric boundary (a white kernel, every order), and per light
     whether its light is summed with the exit's current (:attr:`ScenePlan.current_lights`;
     :mod:`jaxsss.render.dielectric_current`): every light's for objects under :data:`EXIT_CURRENT_MAX_RADIUS`
-    transport lengths in radius, none above. ``forced``: the ``[render].exit_current`` switch (:func:`_forced`)."""
+    transport lengths in radius, none above."""
     l_u = float(np.max(np.asarray(scene.material.medium.l_u)))
     radius = 0.5 * float(np.min(scene.mesh.extents))
     size = radius / l_u
-    on, why = forced
-    if on is None:
-        on = size < EXIT_CURRENT_MAX_RADIUS
-        why = (f"the object is {size:.3g} l_u in radius (half its smallest extent, {radius:.3g} mm; l_u = "
-               f"{l_u:.3g} mm) {'<' if on else '>='} {EXIT_CURRENT_MAX_RADIUS:g} "
-               "(jaxsss.render.plan.EXIT_CURRENT_MAX_RADIUS)")
+    on = size < EXIT_CURRENT_MAX_RADIUS
+    why = (f"the object is {size:.3g} l_u in radius (half its smallest extent, {radius:.3g} mm; l_u = {l_u:.3g} mm) "
+           f"{'<' if on else '>='} {EXIT_CURRENT_MAX_RADIUS:g} (jaxsss.render.plan.EXIT_CURRENT_MAX_RADIUS)")
     if not on:
         return PlanItem("exit azimuth", False,
                         f"{why}: the exit's current is left out (its share of the image goes as l_u / radius: 1.7% per "
