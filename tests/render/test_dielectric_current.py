@@ -38,7 +38,7 @@ def test_the_table_against_a_fresh_walk():
     """Reference: a fresh Fresnel walk on the half-space (another seed, 20000 photons, eta 1.4, albedo 0.9, normal
     incidence): its light leaves along the flow, mean ``e . u`` 0.1-0.3 at 1-4 transport lengths (below the
     index-matched orders >= 2's 0.2-0.4: internal reflection turns the light back), and the shipped tallies agree
-    within 0.04; refitted from its own tallies the table is the shipped one."""
+    within 0.04; refitted from its own tallies the table is the shipped one (to rounding)."""
     table = load_dielectric_current_table()
     e, j = DIELECTRIC_ETAS.index(1.4), CURRENT_ALBEDO.index(0.9)
     fresh = _tally(0.9, 1.0, 20_000, seed=11, eta=1.4)
@@ -46,8 +46,9 @@ def test_the_table_against_a_fresh_walk():
     assert 0.1 < flow < 0.3
     assert _mean_flow(table["tallies"][e, CURRENT_MUS.index(1.0), j], 1.0, 4.0) == pytest.approx(flow, abs=0.04)
     refit = _fit(table["tallies"])
-    np.testing.assert_array_equal(refit["ab"], table["ab"])
-    np.testing.assert_array_equal(refit["psi"], table["psi"])
+    # Equal to rounding: another CPU's vector units sum in another order (5e-15 relative on a new machine).
+    np.testing.assert_allclose(refit["ab"], table["ab"], rtol=1e-12, atol=1e-15)
+    np.testing.assert_allclose(refit["psi"], table["psi"], rtol=1e-12, atol=1e-15)
     np.testing.assert_array_equal(table["eta"], DIELECTRIC_ETAS)
     # The amplitude at albedo 0.9: 0.25-0.7 from 1 to 10 transport lengths.
     a = np.asarray(_amplitude(jnp.array([0.9]), 1.4))[:, 0]
