@@ -5,8 +5,9 @@ renderer never needed one; area and environment lights do. :func:`mirror_radianc
 the extended lights seen along each shaded point's mirror direction ``r = 2 (n . v) n - v`` (shadowed by the scene),
 and :func:`mirror_reflection` multiplies it by the exact Fresnel reflectance ``F(eta, cos_o)`` in JAX, so an image
 stays differentiable in eta. :class:`ReflectingPoints` is the shaded-points state that adds it to the radiance; the
-hierarchical, direct and cached states extend it. Occluders and the object itself seen in the mirror add nothing
-(their reflection is not modelled); a rough boundary (``specular_roughness``) uses the GGX term instead.
+hierarchical, direct and cached states extend it. Occluders seen in the mirror add nothing (their reflection is not
+modelled); the object's own parts seen in it are shaded as points of their own where the scene plan says so
+(:func:`jaxsss.render.shading.seen_in_mirror`); a rough boundary (``specular_roughness``) uses the GGX term instead.
 
 Checked against Mitsuba: the reflection off a smooth dielectric sphere (eta 1.4) under the ``skin1_sphere_env`` sky
 is within 1.5% of Mitsuba's (``docs/benchmarks.md``).
@@ -34,14 +35,13 @@ class ReflectingPoints(ShadedPoints):
 
     mirror: jax.Array | None = eqx.field(default=None, kw_only=True)
 
-    def radiance_from_diffusion(self, medium: Medium, diffusion):
-        """The shared radiance (:meth:`~jaxsss.render.shading.ShadedPoints.radiance_from_diffusion`, which
-        :meth:`~jaxsss.render.shading.ShadedPoints.radiance_from_exitance` ends in) plus :func:`mirror_reflection`
-        where the state holds a mirror image."""
-        out = super().radiance_from_diffusion(medium, diffusion)
-        if self.mirror is not None:
-            out = out + mirror_reflection(medium, self.query_normal, self.to_eye, self.mirror)
-        return out
+    def boundary_reflection(self, medium: Medium):
+        """:func:`mirror_reflection` where the state holds a mirror image, else None (added to the radiance by
+        :meth:`~jaxsss.render.shading.ShadedPoints.radiance_from_diffusion`, before the attenuation of points seen
+        through a wall or in the mirror)."""
+        if self.mirror is None:
+            return None
+        return mirror_reflection(medium, self.query_normal, self.to_eye, self.mirror)
 
 
 def mirror_field(scene, shading, geometry=None):

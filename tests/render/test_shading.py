@@ -1,6 +1,7 @@
 """Shading points (jaxsss.render.shading) and the camera's rays: the edge pixels that get the camera's edge_spp rays
 (creases, and terminators on a turning surface), the per-ray weights of a pixel's mean, that the extra rays bring
-an edge pixel to its area mean, and the camera's rays followed through thin walls at eta = 1 (see_through)."""
+an edge pixel to its area mean, the camera's rays followed through thin walls at eta = 1 (see_through), and the object
+seen in its own smooth boundary (seen_in_mirror)."""
 
 from __future__ import annotations
 
@@ -16,7 +17,7 @@ from jaxsss.render import make_plan, parse_scene, render, scene_with
 from jaxsss.render.camera import camera_rays
 from jaxsss.render.rays import SceneGeometry
 from jaxsss.render.renderer import prepare
-from jaxsss.render.shading import edge_pixels, see_through
+from jaxsss.render.shading import edge_pixels, see_through, seen_in_mirror
 from tests.gradcheck import assert_grad_matches_fd
 
 
@@ -217,3 +218,113 @@ def test_the_plan_sees_through_non_convex_objects_at_eta_1():
     on, why = line(glass, bssrdf="auto")
     assert not on and "eta = 1.4" in why
     assert line(wall, bssrdf="dipole") == (False, "")
+
+
+def _floor_and_block(eta=1.4, **material):
+    """A floor slab (40 x 40 x 2 mm, top at z = 0) with a block standing on it (y from 5 to 15, z from 0.5 to 20.5),
+    one mesh, under a constant environment; the camera looks down at the floor in front of the block, whose smooth
+    boundary mirrors the block's face there."""
+    floor = trimesh.creation.box(extents=(40.0, 40.0, 2.0))
+    floor.apply_translation((0.0, 0.0, -1.0))
+    block = trimesh.creation.box(extents=(40.0, 10.0, 20.0))
+    block.apply_translation((0.0, 10.0, 10.5))
+    scene = parse_scene({
+        "mesh": {"builtin": "box", "extents": [40.0, 40.0, 2.0]},
+        "material": {"sigma_a": 0.06, "sigma_s_prime": 0.45, "eta": eta, **material},
+        "environment": {"radiance": [1.0, 1.0, 1.0], "samples": 16},
+        "camera": {"position": [0.0, -200.0, 100.0], "look_at": [0.0, 0.0, 0.0], "fov_deg": 3.0,
+                   "resolution": [8, 8]},
+    })
+    return scene_with(scene, mesh=trimesh.util.concatenate([floor, block]))
+
+
+def test_seen_in_mirror_finds_the_part_the_boundary_mirrors():
+    geometry = SceneGeometry(_floor_and_block().mesh, [])
+    pos = np.array([[0.0, -2.0, 0.0], [3.0, -2.0, 0.0]])
+    normal = np.array([[0.0, 0.0, 1.0]] * 2)
+    to_eye = np.array([[0.0, -198.0, 100.0], [0.0, 0.0, 1.0]])
+    to_eye /= np.linalg.norm(to_eye, axis=1, keepdims=True)
+    parent, (mpos, mnormal, meye) = seen_in_mirror(geometry, pos, normal, to_eye)
+    # The first point's mirror ray r = (0, 198, 100) / |.| meets the block's face y = 5 at z = 7 * 100 / 198; the
+    # second looks straight up and its mirror ray leaves into the sky.
+    assert list(parent) == [0]
+    np.testing.assert_allclose(mpos[0], [0.0, 5.0, geometry.offset + 700.0 / 198.0], atol=1e-6)  # from the offset
+    np.testing.assert_allclose(mnormal[0], [0.0, -1.0, 0.0], atol=1e-9)
+    np.testing.assert_allclose(meye[0], -np.array([0.0, 198.0, 100.0]) / np.hypot(198.0, 100.0), atol=1e-12)
+    # A convex object never mirrors itself; no points, no output.
+    sphere = SceneGeometry(_sphere().mesh, [])
+    out = seen_in_mirror(sphere, np.array([[0.0, -10.0, 0.0]]), np.array([[0.0, -1.0, 0.0]]),
+                         np.array([[0.0, -0.6, 0.8]]))
+    assert out[0].shape == (0,) and out[1][0].shape == (0, 3)
+    assert seen_in_mirror(geometry, pos[:0], normal[:0], to_eye[:0])[1][2].shape == (0, 3)
+
+
+def test_the_object_in_its_mirror_adds_fresnel_times_its_radiance():
+    """The plan adds the mirrored parts as points of their own; the eye gets ``F(eta, cos_o)`` (Fresnel at the
+    mirroring point, an independent evaluation) of their radiance, in their parent's pixel with its ray's weight;
+    nothing else changes. (The image is assembled from the radiance by ``image_from_radiance``; the diffusion radiance
+    is compiled once, with the dipole kernel: the mirror does not depend on the kernel.)"""
+    import jax
+
+    from jaxsss.fresnel import fresnel_reflectance
+
+    scene = _floor_and_block()
+    plan = make_plan(scene, method="direct")
+    assert plan.self_mirror
+    on = prepare(scene, method="direct", plan=plan)[0]
+    off = prepare(scene, method="direct", plan=plan._replace(self_mirror=False))[0]
+    medium = scene.material.medium
+    mirrored = np.asarray(on.query_mirrored)
+    added = mirrored > 0
+    assert off.query_mirrored is None and off.n_queries == int(np.sum(~added)) and 0 < added.sum() < on.n_queries
+    np.testing.assert_array_equal(np.asarray(on.query_pos)[~added], np.asarray(off.query_pos))
+    diffusion = jax.jit(lambda p, m: p.diffusion_radiance(m))(on, medium)
+    radiance = np.asarray(on.radiance_from_diffusion(medium, diffusion))
+    bare = dataclasses.replace(on, query_mirrored=None)
+    unweighted = np.asarray(bare.radiance_from_diffusion(medium, diffusion))
+    np.testing.assert_allclose(radiance[~added], unweighted[~added], rtol=1e-12)
+    f = np.asarray(fresnel_reflectance(1.4, mirrored[added]))
+    np.testing.assert_allclose(radiance[added], f[:, None] * unweighted[added], rtol=1e-10)
+    assert np.all(unweighted[added] > 0) and np.all((f > 0.02) & (f < 0.2))
+    # Each added point lands in its parent's pixel, with the parent ray's weight.
+    pixel, weight = np.asarray(on.query_pixel), np.asarray(on.query_weight)
+    assert set(zip(pixel[added], weight[added])) <= set(zip(pixel[~added], weight[~added]))
+    image_on = np.asarray(on.image_from_radiance(radiance))
+    image_off = np.asarray(on.image_from_radiance(np.where(added[:, None], 0.0, radiance)))
+    extra = np.zeros((image_on.shape[0] * image_on.shape[1], 3))
+    np.add.at(extra, pixel[added], radiance[added] * weight[added, None])
+    np.testing.assert_allclose(image_on - image_off, extra.reshape(image_on.shape), atol=1e-12 * image_on.max())
+    assert (extra > 0).any() and np.all(image_on >= image_off)
+
+
+def test_the_object_in_its_mirror_is_differentiable_in_eta():
+    scene = _floor_and_block()
+    on = prepare(scene, method="direct", plan=make_plan(scene, method="direct"))[0]
+    radiance = jnp.linspace(0.5, 1.5, on.n_queries)[:, None] * jnp.ones(3)
+
+    def f(x):
+        return jnp.sum(on.seen_through(Medium(jnp.full(3, 0.06), jnp.full(3, 0.45), x[0]), radiance))
+
+    assert_grad_matches_fd(f, np.array([1.4]), rtol=1e-6)
+
+
+def test_the_plan_mirrors_non_convex_objects_behind_a_smooth_boundary():
+    """On for the floor and block at eta 1.4 under an environment; off, each with its reason, at eta = 1, with a
+    rough boundary, under point lights only, and for a convex sphere."""
+    from jaxsss.render.plan import make_plan as plan_for
+
+    def line(scene):
+        plan = plan_for(scene, bssrdf="auto")
+        (item,) = [i for i in plan.items if i.name == "object in its own mirror"]
+        assert item.included == plan.self_mirror
+        return plan.self_mirror, item.reason
+
+    assert line(_floor_and_block())[0]
+    for scene, why in ((_floor_and_block(eta=1.0), "reflects nothing"),
+                       (_floor_and_block(specular_roughness=0.3), "rough"),
+                       (_wall_and_block(), "reflects nothing"),
+                       (scene_with(_floor_and_block(), lights=_wall_and_block().lights), "no environment"),
+                       (scene_with(_sphere(), lights=_floor_and_block().lights, material=_floor_and_block().material),
+                        "convex")):
+        on, reason = line(scene)
+        assert not on and why in reason, reason
