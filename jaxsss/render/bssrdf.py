@@ -119,7 +119,8 @@ from jaxsss.render.curvature import (KAPPA_MAX_ZR, N_KAPPA, curvature_coordinate
                                      pair_curvature)
 from jaxsss.render.exit_direction import anisotropic_exit_distribution
 
-__all__ = ["BSSRDFS", "GRID_PER_DECADE", "OBLIQUE_MUS", "WhiteKernel", "albedo_correction", "chandrasekhar_h",
+__all__ = ["BSSRDFS", "GRID_PER_DECADE", "OBLIQUE_MUS", "PURE_ABSORBER_SCATTERING", "WhiteKernel", "albedo_correction",
+           "chandrasekhar_h",
            "choose_bssrdf", "current_radiance", "directional_albedo", "exit_distribution", "exit_radiance_nodes",
            "exit_weights",
            "half_space_reflection", "row_parts", "hat_weights", "multiple_exit_distribution", "multiple_orders",
@@ -216,6 +217,9 @@ by the forward-scattering table (:mod:`jaxsss.render.exit_direction`) and ``auto
 against Mitsuba's g09_sphere (g = 0.9) mare_lit 0.097 / 0.099 / 0.106 (most of it the reference's own noise), sums
 0.98, against the dipole's 0.152 / 0.160 / 0.173, sums 0.93 / 0.90 / 0.88 (with the isotropic exit: 0.36-0.51;
 docs/path_tracer.md, "Forward scattering's exit direction")."""
+PURE_ABSORBER_SCATTERING = 1e-9
+"""The white kernels' floor on ``sigma_s' / sigma_a``: a medium that does not scatter (``sigma_s' = 0``, allowed) is
+profiled at this ratio, a diffuse radiance ~1e-20 of the light's, instead of NaN from its infinite optical unit."""
 GRID_RHO_MIN = 1e-3
 GRID_RHO_MAX = 10**3.5
 GRID_PER_DECADE = 40
@@ -1224,6 +1228,9 @@ def _white_kernel(medium: Medium, sources: WhiteSources, mus: tuple, shift: bool
     sigma_a = jnp.atleast_1d(medium.sigma_a)
     sigma_s_prime = jnp.broadcast_to(jnp.atleast_1d(medium.sigma_s_prime), sigma_a.shape)
     sigma_a = jnp.broadcast_to(sigma_a, sigma_s_prime.shape)
+    # A pure absorber (sigma_s' = 0) sends no diffuse light back: its profile is taken at sigma_s' = 1e-9 sigma_a (a
+    # radiance ~1e-20 of the light's) rather than on the grid's optical units 1 / sigma_s, which would be infinite.
+    sigma_s_prime = jnp.maximum(sigma_s_prime, PURE_ABSORBER_SCATTERING * sigma_a)
     sigma_s = sigma_s_prime / (1.0 - g)
     # The grid is in optical units (1/sigma_s); the family takes mm.
     r = jnp.asarray(rho)[:, None] / sigma_s  # (G, C) mm
