@@ -58,10 +58,11 @@ SCENES = ("skin1_sphere", "g09_sphere", "skin1_sphere_env", "marble_teapot", "sk
 FIT_VIEWS = ("skin1_sphere_zoom",)
 """References made with ``--references`` for fits only (notebooks/render_and_fit.ipynb), not benchmarked: the skin1
 sphere through a narrow lens at its terminator, a second view in which the diffusion blur spans many pixels."""
-CHECKS = ("marble_sphere_env",)
+CHECKS = ("marble_sphere_env", "skin1_teapot_env")
 """References made with ``--references`` for tests only, not benchmarked: marble (albedo 0.999) on the 20 mm sphere at
 eta 1.5 under skin1_sphere_env's sky, 44 transport lengths in radius, where the plan leaves the exit's current out
-(:data:`jaxsss.render.plan.EXIT_CURRENT_MAX_RADIUS`)."""
+(:data:`jaxsss.render.plan.EXIT_CURRENT_MAX_RADIUS`); skin1 on the teapot at eta 1.4 under the same sky, which mirrors
+itself in its boundary (:func:`jaxsss.render.shading.seen_in_mirror`)."""
 FIRST_ORDER_REFERENCES = {"chicken1_sphere_first_order": "chicken1_sphere"}
 """References of the light scattered once (Mitsuba at ``max_depth = 2``, eta = 1), by the scene they share: the
 reference for :mod:`jaxsss.render.first_order` alone (tests/export/test_compare_bssrdf.py), and with the whole
@@ -69,7 +70,7 @@ reference the orders >= 2 by difference (docs/path_tracer.md, "The orders, path-
 REFERENCE_SPP = {"skin1_sphere": 8192, "g09_sphere": 24576, "skin1_sphere_env": 65536, "marble_teapot": 16384,
                  "skin1_sphere_env13": 32768, "ketchup_sphere": 8192, "skin1_sphere_zoom": 32768,
                  "skin1_sphere_arealight": 8192, "chicken1_sphere": 8192, "chicken1_sphere_first_order": 32768,
-                 "marble_sphere_env": 4096}
+                 "marble_sphere_env": 4096, "skin1_teapot_env": 16384}
 REFERENCE_SEEDS = (0, 1)  # two halves, averaged; their difference measures the reference's noise
 LLVM_CANDIDATES = ("/usr/lib/x86_64-linux-gnu/libLLVM-19.so", "/usr/lib/x86_64-linux-gnu/libLLVM.so.19.1")
 ERROR_METRIC = "max over RGB of mean |relative error| over lit fully covered pixels vs the Mitsuba reference"
@@ -127,7 +128,8 @@ def skin1_env_sky() -> np.ndarray:
 
 SKIES = {"skin1_sphere_env": ("skin1_sphere_env_sky.npy", skin1_env_sky),
          "skin1_sphere_env13": ("skin1_sphere_env_sky.npy", skin1_env_sky),
-         "marble_sphere_env": ("skin1_sphere_env_sky.npy", skin1_env_sky)}
+         "marble_sphere_env": ("skin1_sphere_env_sky.npy", skin1_env_sky),
+         "skin1_teapot_env": ("skin1_sphere_env_sky.npy", skin1_env_sky)}
 """Environment maps of reference scenes, written next to their scene file before a reference is rendered."""
 
 
