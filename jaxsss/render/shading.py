@@ -454,7 +454,6 @@ class ShadedPoints(eqx.Module):
     def boundary_reflection(self, medium: Medium):
         """``(Q, C)`` radiance the smooth boundary reflects towards the eye beyond the lights' highlights, or None
         (here: none; :class:`jaxsss.render.mirror.ReflectingPoints` adds the mirror image of extended lights)."""
-        return None
 
     def seen_through(self, medium: Medium, radiance):
         """``radiance`` ``(Q, C)`` at the shaded points as the eye receives it: attenuated by ``exp(-sigma_t' c)``
