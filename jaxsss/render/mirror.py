@@ -24,7 +24,7 @@ import numpy as np
 from jaxsss._config import to_device
 from jaxsss.medium import Medium
 from jaxsss.render.lights import EXTENDED_KINDS, light_channels
-from jaxsss.render.shading import ShadedPoints
+from jaxsss.render.shading import ShadedPoints, mirror_direction
 
 __all__ = ["ReflectingPoints", "mirror_field", "mirror_radiance", "mirror_reflection"]
 
@@ -73,9 +73,7 @@ def mirror_radiance(lights: Sequence, points: np.ndarray, normals: np.ndarray, t
         return None
     points, normals, to_eye = (np.asarray(a, dtype=np.float64) for a in (points, normals, to_eye))
     n_channels = light_channels(lights)
-    # Mirror direction: r = 2 (n . v) n - v.
-    r = 2.0 * np.einsum("ij,ij->i", normals, to_eye)[:, None] * normals - to_eye
-    r /= np.maximum(np.linalg.norm(r, axis=1, keepdims=True), 1e-300)
+    r = mirror_direction(normals, to_eye)
     blocked_at = np.full(len(points), np.inf)
     if geometry is not None and len(points):
         hits = geometry.first_hit(points + geometry.offset * normals, r)

@@ -39,7 +39,7 @@ from jaxsss.render.rays import OBJECT_TRANSLUCENT, Hits
 
 __all__ = ["CREASE_DEG", "EDGE_CONTRAST", "EDGE_TURN_DEG", "VIEW_REENTRIES", "SeenThrough", "ShadedPoints",
            "ShadingPoints", "constant_image", "edge_pixels", "exit_azimuth", "face_the_eye", "image_stats",
-           "point_shading", "see_through", "seen_in_mirror", "shaded_fields", "shading_points"]
+           "mirror_direction", "point_shading", "see_through", "seen_in_mirror", "shaded_fields", "shading_points"]
 
 
 class ShadingPoints(NamedTuple):
@@ -253,6 +253,13 @@ def shading_points(scene, geometry, plan, resolution, pixel_mask, n_channels: in
                          q_weight, march, through, veil, mirrored)
 
 
+def mirror_direction(normal: np.ndarray, to_eye: np.ndarray) -> np.ndarray:
+    """``(Q, 3)`` unit mirror directions of unit ``to_eye`` about unit ``normal`` (both ``(Q, 3)``)."""
+    # Mirror direction: r = 2 (n . v) n - v.
+    r = 2.0 * np.einsum("ij,ij->i", normal, to_eye)[:, None] * normal - to_eye
+    return r / np.maximum(np.linalg.norm(r, axis=1, keepdims=True), 1e-300)
+
+
 def seen_in_mirror(geometry, pos: np.ndarray, normal: np.ndarray, to_eye: np.ndarray):
     """The object's own parts seen in its smooth boundary: the points where the shaded points' mirror rays ``r = 2
     (n . v) n - v`` meet the translucent object first.
@@ -273,9 +280,7 @@ def seen_in_mirror(geometry, pos: np.ndarray, normal: np.ndarray, to_eye: np.nda
         and the added points' positions (mm), normals facing ``-r`` and directions to the mirror ``-r``, ``(M, 3)``.
     """
     pos, normal, to_eye = (np.asarray(a, dtype=np.float64) for a in (pos, normal, to_eye))
-    # Mirror direction: r = 2 (n . v) n - v.
-    r = 2.0 * np.einsum("ij,ij->i", normal, to_eye)[:, None] * normal - to_eye
-    r /= np.maximum(np.linalg.norm(r, axis=1, keepdims=True), 1e-300)
+    r = mirror_direction(normal, to_eye)
     hits = geometry.first_hit(pos + geometry.offset * normal, r)
     parent = np.flatnonzero(hits.hit & (hits.obj == OBJECT_TRANSLUCENT))
     new_pos = hits.position[parent]
