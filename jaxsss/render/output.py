@@ -10,7 +10,6 @@ from __future__ import annotations
 import json
 from pathlib import Path
 
-import colour
 import numpy as np
 from PIL import Image
 
@@ -21,6 +20,8 @@ __all__ = ["encode_srgb", "write_exr", "write_outputs", "write_png"]
 
 def encode_srgb(image: np.ndarray, exposure: float = 1.0) -> np.ndarray:
     """``(H, W, 3)`` uint8 sRGB of a linear image (IEC 61966-2-1 transfer function, via colour-science)."""
+    import colour  # here, not at the top: importing colour-science takes ~2 s (it loads matplotlib and scipy)
+
     linear = np.clip(np.nan_to_num(np.asarray(image, dtype=np.float64) * exposure), 0.0, 1.0)
     encoded = colour.cctf_encoding(linear, function="sRGB")
     return np.round(np.clip(encoded, 0.0, 1.0) * 255.0).astype(np.uint8)
