@@ -127,8 +127,9 @@ def anisotropic_exit_distribution(mu_o, harmonics, mu_i, albedo, g):
         g: the anisotropy, a scalar in ``[0, 0.95]`` (held at the last node beyond).
 
     Returns:
-        ``(Q, K, C)``; ``int_0^1 int X 2 mu_o dmu_o dphi / (2 pi) = 1`` (the harmonics integrate to zero over
-        ``phi``).
+        ``(Q, K, C)``, ``>= 0``; ``int_0^1 int X 2 mu_o dmu_o dphi / (2 pi) = 1`` (the harmonics integrate to zero
+        over ``phi``), to within the floor at 0 where the truncated series rings negative (grazing incidence and
+        exit behind a narrow forward peak).
     """
     tab = load_exit_table()
     idx = []
@@ -146,8 +147,10 @@ def anisotropic_exit_distribution(mu_o, harmonics, mu_i, albedo, g):
     centres = 0.5 * (edges[1:] + edges[:-1])
     w_mu = _hat(jnp.clip(mu_o, 0.0, 1.0), centres)  # (Q, U)
     x = jnp.einsum("qu,kcuh->qkch", w_mu, x)
-    # X_0 + 2 sum_m X_m cos(m phi).
-    return x[..., 0] + 2.0 * jnp.einsum("qkch,qh->qkc", x[..., 1:], harmonics)
+    # X_0 + 2 sum_m X_m cos(m phi), floored at 0: nine harmonics ring below zero behind a narrow forward peak (grazing
+    # incidence and exit, g >= 0.7: down to -0.36 X_0 at g = 0.9, alpha' 0.995, and below -X_0 at g = 0.95, alpha' 0.1),
+    # where the radiance is about 0. Unfloored, such points rendered negative (docs/path_tracer.md, stop 56).
+    return jnp.maximum(x[..., 0] + 2.0 * jnp.einsum("qkch,qh->qkc", x[..., 1:], harmonics), 0.0)
 
 
 def azimuth_harmonics(lights, points, normals, to_eye, n: int = EXIT_HARMONICS - 1) -> np.ndarray:
