@@ -91,16 +91,16 @@ def test_the_exit_is_never_negative_where_nine_harmonics_ring():
     tab = load_exit_table()
     c, _ = _centres(tab)
     phi = np.linspace(0.0, np.pi, 61)
-    harm = np.cos(np.arange(1, EXIT_HARMONICS)[None, :] * phi[:, None])  # (P, H - 1)
-    mu_o = np.repeat(c, len(phi))
-    harm = jnp.asarray(np.tile(harm, (len(c), 1)))
+    cos_m_phi = np.cos(np.arange(1, EXIT_HARMONICS)[None, :] * phi[:, None])  # (P, H - 1)
+    mu_o = np.repeat(c, len(phi))  # every exit bin at every azimuth: rows (u, p)
+    harm = jnp.asarray(np.tile(cos_m_phi, (len(c), 1)))
     for g in (0.7, 0.9, 0.95):
         x = np.asarray(anisotropic_exit_distribution(jnp.asarray(mu_o), harm, np.array(EXIT_MUS),
                                                      jnp.asarray(EXIT_ALBEDO), g))
         assert x.min() == 0.0  # floored where the series rings (the unfloored minimum is below zero at these g)
         # The series itself, by hand from the table's node (g, alpha' and mu_i are nodes; mu_o the bins' centres).
         node = tab["X"][list(tab["g"]).index(g)]  # (A, K, U, H)
-        series = (node[..., :1] + 2.0 * np.einsum("akuh,ph->akup", node[..., 1:], np.asarray(harm[: len(phi)])))
+        series = node[..., :1] + 2.0 * np.einsum("akuh,ph->akup", node[..., 1:], cos_m_phi)
         series = np.transpose(series, (2, 3, 1, 0)).reshape(len(c) * len(phi), len(EXIT_MUS), len(EXIT_ALBEDO))
         assert series.min() < 0.0
         np.testing.assert_allclose(x, np.maximum(series, 0.0), rtol=1e-12, atol=1e-12)
