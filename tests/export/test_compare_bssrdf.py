@@ -284,7 +284,10 @@ def test_forward_scattering_sphere_against_its_path_traced_reference():
     Against the 8192-spp reference: 0.097 / 0.099 / 0.106, band 0.230 / 0.246 / 0.277; with the g = 0 shift 0.102 /
     0.106 / 0.112, band bias +11 / +18 / +19%; with isotropic scattering's exit distribution 0.36 / 0.43 / 0.51. The
     dipole plus single scattering (auto's choice before): 0.138 / 0.143 / 0.157, band 0.30-0.33, sums 0.928 / 0.904 /
-    0.882. Bounds: the achieved level plus about 10%, the sum goal, and the dipole's sums failing it."""
+    0.882. Stop 56 (later kernels): 0.074 / 0.074 / 0.079, band 0.178 / 0.183 / 0.182, sums 0.980 / 0.977 / 0.974.
+    Each node row leaving at the shaded point's own incidence cosine (stop 57, not kept) gave 0.073 / 0.071 / 0.070 and
+    sums 0.982 / 0.989 / 0.993, but -4.9% in red at cos 0.1-0.3, which this test's bins refuse. Bounds: the achieved
+    level plus about 10%, the sum goal, and the dipole's sums failing it."""
     scene, ref, coverage = reference("g09_sphere")
     result = render(scene)
     assert result.report["plan"]["bssrdf"] == "white-oblique"
@@ -297,6 +300,25 @@ def test_forward_scattering_sphere_against_its_path_traced_reference():
     assert all(b["n"] > 100 and np.all(np.abs(b["bias"]) <= 0.04) for b in by_cos), by_cos
     old = compare_images(render(scene, bssrdf="dipole").image, ref, pixels, coverage=coverage)
     assert np.any(np.abs(np.array(old["sum_ratio"]) - 1.0) > 0.03), old["sum_ratio"]
+
+
+def test_forward_scattering_on_a_flat_face_is_short_by_its_node_mixed_exit():
+    """The g09_sphere material on a slab's face under a point light (mu_i 0.6-0.85), seen from the far side near the
+    mirror direction (Mitsuba 8192 spp, 1495 s, noise 4.8 / 5.1 / 5.6% per pixel): a half-space, so what is wrong is
+    the kernel's or its exit's. The goal is missed. Achieved (2026-11-30, stop 57): 4 x 4 blocks 0.043 / 0.042 /
+    0.052, sums 0.959 / 0.959 / 0.951. The exitance there is E A(mu_i) to 0.4%; the exit is short: each node row leaves
+    by its own node's exit, and between the nodes that mix puts 5-7% too little light towards this view at g = 0.9.
+    Leaving at the shaded point's own incidence cosine took this face to 0.028 / 0.024 / 0.021, sums 0.972 / 0.976 /
+    0.981, but darkened the g09 sphere's red near the terminator to -4.9% (not kept: docs/path_tracer.md, "Forward
+    scattering's exit between the incidence nodes"). Bounds: the achieved level plus about 10% of its error."""
+    scene, ref, coverage = reference("g09_slab")
+    result = render(scene)
+    assert result.report["plan"]["bssrdf"] == "white-oblique"
+    m = compare_images(result.image, ref, pixel_geometry(scene), coverage=coverage)
+    assert np.all(np.array(m["n_binned"]) >= 30), m["n_binned"]
+    assert np.all(np.array(m["mare_binned"]) <= (0.048, 0.047, 0.058)), m["mare_binned"]
+    assert np.all(np.array(m["sum_ratio"]) >= (0.955, 0.955, 0.946)), m["sum_ratio"]
+    assert np.all(np.array(m["sum_ratio"]) <= 1.03), m["sum_ratio"]
 
 
 def test_skin1_lit_from_behind_against_its_path_traced_reference():
