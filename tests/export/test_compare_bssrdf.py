@@ -286,8 +286,10 @@ def test_forward_scattering_sphere_against_its_path_traced_reference():
     dipole plus single scattering (auto's choice before): 0.138 / 0.143 / 0.157, band 0.30-0.33, sums 0.928 / 0.904 /
     0.882. Stop 56 (later kernels): 0.074 / 0.074 / 0.079, band 0.178 / 0.183 / 0.182, sums 0.980 / 0.977 / 0.974.
     Each node row leaving at the shaded point's own incidence cosine (stop 57, not kept) gave 0.073 / 0.071 / 0.070 and
-    sums 0.982 / 0.989 / 0.993, but -4.9% in red at cos 0.1-0.3, which this test's bins refuse. Bounds: the achieved
-    level plus about 10%, the sum goal, and the dipole's sums failing it."""
+    sums 0.982 / 0.989 / 0.993, but -4.9% in red at cos 0.1-0.3, which this test's bins refuse; each pair's light
+    leaving at the cosine it entered by (stop 58, not kept) 0.070 / 0.072 / 0.075, sums 0.997 / 1.003 / 1.007, but
+    +4.3 / +4.8 / +5.0% there. Bounds: the achieved level plus about 10%, the sum goal, and the dipole's sums failing
+    it."""
     scene, ref, coverage = reference("g09_sphere")
     result = render(scene)
     assert result.report["plan"]["bssrdf"] == "white-oblique"
@@ -310,7 +312,9 @@ def test_forward_scattering_on_a_flat_face_is_short_by_its_node_mixed_exit():
     by its own node's exit, and between the nodes that mix puts 5-7% too little light towards this view at g = 0.9.
     Leaving at the shaded point's own incidence cosine took this face to 0.028 / 0.024 / 0.021, sums 0.972 / 0.976 /
     0.981, but darkened the g09 sphere's red near the terminator to -4.9% (not kept: docs/path_tracer.md, "Forward
-    scattering's exit between the incidence nodes"). Bounds: the achieved level plus about 10% of its error."""
+    scattering's exit between the incidence nodes"); each pair's light leaving at the cosine it entered by (stop 58,
+    not kept) gave the same here, and +4.3 to +5.0% in the sphere's cos 0.1-0.3 bin ("Forward scattering's exit at the
+    cosine it entered by"). Bounds: the achieved level plus about 10% of its error."""
     scene, ref, coverage = reference("g09_slab")
     result = render(scene)
     assert result.report["plan"]["bssrdf"] == "white-oblique"
@@ -318,6 +322,23 @@ def test_forward_scattering_on_a_flat_face_is_short_by_its_node_mixed_exit():
     assert np.all(np.array(m["n_binned"]) >= 30), m["n_binned"]
     assert np.all(np.array(m["mare_binned"]) <= (0.048, 0.047, 0.058)), m["mare_binned"]
     assert np.all(np.array(m["sum_ratio"]) >= (0.955, 0.955, 0.946)), m["sum_ratio"]
+    assert np.all(np.array(m["sum_ratio"]) <= 1.03), m["sum_ratio"]
+
+
+def test_forward_scattering_on_a_flat_face_at_grazing_incidence_is_short_too():
+    """The g09_slab face under light at grazing incidence (mu_i 0.1-0.25; Mitsuba 2048 spp, 191 s, noise 25-28% per
+    pixel, about 1% in the sums): the goal is missed, 5.5% dark in sum. Achieved (2026-11-30, stop 58): 4 x 4 blocks
+    0.076 / 0.078 / 0.081 (the reference's own noise there is 6.3%), sums 0.945 / 0.944 / 0.947. Each pair's light
+    leaving at the cosine it entered by took it to 1.005 / 1.011 / 1.023 (not kept: it puts the g09 sphere's
+    cos 0.1-0.3 bin at +4.3 to +5.0%; docs/path_tracer.md, "Forward scattering's exit at the cosine it entered by").
+    Bounds: the achieved level plus about 10% of its error."""
+    scene, ref, coverage = reference("g09_grazing")
+    result = render(scene)
+    assert result.report["plan"]["bssrdf"] == "white-oblique"
+    m = compare_images(result.image, ref, pixel_geometry(scene), coverage=coverage)
+    assert np.all(np.array(m["n_binned"]) >= 20), m["n_binned"]
+    assert np.all(np.array(m["mare_binned"]) <= (0.084, 0.086, 0.089)), m["mare_binned"]
+    assert np.all(np.array(m["sum_ratio"]) >= (0.939, 0.938, 0.941)), m["sum_ratio"]
     assert np.all(np.array(m["sum_ratio"]) <= 1.03), m["sum_ratio"]
 
 
