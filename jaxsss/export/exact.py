@@ -28,7 +28,7 @@ from typing import NamedTuple
 
 import numpy as np
 
-__all__ = ["FaceReference", "point_lit_face"]
+__all__ = ["FaceReference", "point_lit_face", "single_scattering_face"]
 
 
 class FaceReference(NamedTuple):
@@ -49,32 +49,25 @@ def _refuse(key: str, value, allowed: str):
     raise ValueError(f"{key}={value!r} is not supported by the exact half-space reference; allowed: {allowed}")
 
 
-def point_lit_face(scene, margin: float) -> FaceReference:
-    """Per-pixel exact radiance of the flat face the camera looks at (pixel centres), ``L = E f_r``.
+class _Face(NamedTuple):
+    """The camera's pixels on the flat face it looks at (:func:`_face_pixels`)."""
 
-    The face is the plane of the facet hit at the image centre; its extent is the bounding rectangle of the mesh's
-    vertices on that plane (exact for the ``slab`` and ``box`` built-ins, whose faces are rectangles).
+    shape: tuple
+    on: np.ndarray  # (P,) bool
+    position: np.ndarray  # (P, 3) mm
+    normal: np.ndarray  # (3,)
+    view: np.ndarray  # (P, 3) unit direction of the camera ray (towards the face)
 
-    Args:
-        scene: a :class:`jaxsss.render.Scene` with ``eta = 1``, ``g`` of 0 or none, one ``point`` light, no
-            occluders and no texture (ValueError otherwise, naming the key).
-        margin: mm, > 0: pixels closer than this to the face's edges are left out (some diffusion lengths: the
-            half-space has no edges).
-    """
-    from jaxsss.export.support import medium_arrays
-    from jaxsss.render.bssrdf import half_space_reflection
+
+def _face_pixels(scene, margin: float) -> _Face:
+    """The pixels whose centre's first hit lies on the face hit at the image centre, at least ``margin`` mm inside
+    its edges (the bounding rectangle of the mesh's vertices on its plane: exact for the ``slab`` and ``box``
+    built-ins, whose faces are rectangles)."""
     from jaxsss.render.camera import camera_rays
     from jaxsss.render.rays import SceneGeometry
 
     if not margin > 0.0:
         raise ValueError(f"margin={margin!r} is outside the allowed range (0, inf) mm")
-    m = medium_arrays(scene.material.medium)
-    if m["eta"] != 1.0:
-        _refuse("material.eta", m["eta"], "1 (index-matched)")
-    if m["g"] != 0.0:
-        _refuse("material.g", m["g"], "0 or none (isotropic scattering)")
-    if len(scene.lights) != 1 or scene.lights[0].kind != "point":
-        _refuse("light", [light.kind for light in scene.lights], "exactly one point light")
     if scene.occluders:
         _refuse("occluder", len(scene.occluders), "none")
     if scene.material.texture is not None:
@@ -102,16 +95,94 @@ def point_lit_face(scene, margin: float) -> FaceReference:
     p = np.nan_to_num(hits.position)
     uv = np.stack([p @ u, p @ v], axis=1)
     on &= np.all((uv >= lo) & (uv <= hi), axis=1)
-    light = scene.lights[0]
+    d = np.asarray(rays.directions, dtype=np.float64)
+    return _Face((h, w), on, p, n, d / np.linalg.norm(d, axis=1, keepdims=True))
+
+
+def _light_at(light, p):
+    """``(unit direction to the light (P, 3), irradiance on a surface facing it (P, C) W/mm^2)`` of a point or
+    directional light at points ``p`` ``(P, 3)``."""
+    intensity = np.atleast_1d(np.asarray(light.intensity, dtype=np.float64))
+    if light.kind == "directional":
+        d = -np.asarray(light.direction, dtype=np.float64)
+        return np.broadcast_to(d / np.linalg.norm(d), p.shape), np.broadcast_to(intensity, (len(p), intensity.size))
     to_light = np.asarray(light.position, dtype=np.float64) - p
     r2 = np.sum(to_light**2, axis=1)
+    return to_light / np.sqrt(r2)[:, None], intensity[None, :] / r2[:, None]
+
+
+def point_lit_face(scene, margin: float) -> FaceReference:
+    """Per-pixel exact radiance of the flat face the camera looks at (pixel centres), ``L = E f_r``.
+
+    The face is the plane of the facet hit at the image centre; its extent is the bounding rectangle of the mesh's
+    vertices on that plane (exact for the ``slab`` and ``box`` built-ins, whose faces are rectangles).
+
+    Args:
+        scene: a :class:`jaxsss.render.Scene` with ``eta = 1``, ``g`` of 0 or none, one ``point`` light, no
+            occluders and no texture (ValueError otherwise, naming the key).
+        margin: mm, > 0: pixels closer than this to the face's edges are left out (some diffusion lengths: the
+            half-space has no edges).
+    """
+    from jaxsss.export.support import medium_arrays
+    from jaxsss.render.bssrdf import half_space_reflection
+
+    m = medium_arrays(scene.material.medium)
+    if m["eta"] != 1.0:
+        _refuse("material.eta", m["eta"], "1 (index-matched)")
+    if m["g"] != 0.0:
+        _refuse("material.g", m["g"], "0 or none (isotropic scattering)")
+    if len(scene.lights) != 1 or scene.lights[0].kind != "point":
+        _refuse("light", [light.kind for light in scene.lights], "exactly one point light")
+    face = _face_pixels(scene, margin)
+    (h, w), n = face.shape, face.normal
+    light = scene.lights[0]
+    to_light = np.asarray(light.position, dtype=np.float64) - face.position
+    r2 = np.sum(to_light**2, axis=1)
     mu_i = to_light @ n / np.sqrt(r2)
-    mu_o = -(np.asarray(rays.directions) @ n) / np.linalg.norm(rays.directions, axis=1)
-    on &= (mu_i > 0.0) & (mu_o > 0.0)
+    mu_o = -(face.view @ n)
+    on = face.on & (mu_i > 0.0) & (mu_o > 0.0)
     albedo = m["sigma_s"] / np.where(m["sigma_t"] > 0.0, m["sigma_t"], 1.0)
     f_r = np.asarray(half_space_reflection(np.where(on, mu_i, 1.0)[:, None], np.where(on, mu_o, 1.0)[:, None],
                                            albedo[None, :]))
     # L = E f_r with the point light's irradiance E = I mu_i / r^2.
     image = (np.asarray(light.intensity, dtype=np.float64) * (mu_i / r2)[:, None]) * f_r
+    image = np.where(on[:, None], image, np.nan)
+    return FaceReference(image.reshape(h, w, 3), on.reshape(h, w), np.where(on, mu_i, np.nan).reshape(h, w))
+
+
+def single_scattering_face(scene, margin: float) -> FaceReference:
+    """Per-pixel exact *first-order* radiance of the flat face the camera looks at (pixel centres), any ``g``:
+
+        L_1 = (sigma_s / sigma_t) p(cos theta) E mu_i / (mu_i + mu_o)
+
+    (Hanrahan and Krueger 1993's single scattering of a half-space at ``eta = 1``; ``E`` the light's irradiance on a
+    surface facing it, ``p`` the Henyey-Greenstein phase function per steradian, ``theta`` between the light's
+    direction of travel and the view's reversed). Exact for a uniformly lit face (a directional light); for a point
+    light to the same order as :func:`point_lit_face`. Its path-traced counterpart is Mitsuba at ``max_depth = 2``.
+
+    Args:
+        scene: a :class:`jaxsss.render.Scene` with ``eta = 1``, one ``point`` or ``directional`` light, no occluders
+            and no texture (ValueError otherwise, naming the key).
+        margin: mm, > 0: pixels closer than this to the face's edges are left out.
+    """
+    from jaxsss.export.support import medium_arrays
+
+    m = medium_arrays(scene.material.medium)
+    if m["eta"] != 1.0:
+        _refuse("material.eta", m["eta"], "1 (index-matched)")
+    if len(scene.lights) != 1 or scene.lights[0].kind not in ("point", "directional"):
+        _refuse("light", [light.kind for light in scene.lights], "exactly one point or directional light")
+    face = _face_pixels(scene, margin)
+    (h, w), n = face.shape, face.normal
+    to_light, e = _light_at(scene.lights[0], face.position)
+    mu_i, mu_o = to_light @ n, -(face.view @ n)
+    on = face.on & (mu_i > 0.0) & (mu_o > 0.0)
+    # Henyey-Greenstein at the angle between the light's travel (-to_light) and the exit (-view).
+    g = float(m["g"])
+    cos_theta = np.einsum("ij,ij->i", to_light, face.view)
+    phase = (1.0 - g * g) / (4.0 * np.pi * (1.0 + g * g - 2.0 * g * cos_theta) ** 1.5)
+    albedo = m["sigma_s"] / np.where(m["sigma_t"] > 0.0, m["sigma_t"], 1.0)
+    # L_1 = a p E mu_i / (mu_i + mu_o).
+    image = albedo[None, :] * e * (phase * mu_i / np.where(on, mu_i + mu_o, 1.0))[:, None]
     image = np.where(on[:, None], image, np.nan)
     return FaceReference(image.reshape(h, w, 3), on.reshape(h, w), np.where(on, mu_i, np.nan).reshape(h, w))
