@@ -178,6 +178,9 @@ def make_reference(name: str, directory: Path = REFERENCES, spp: int | None = No
         "coverage_spp": 1024, "coverage_seconds": coverage_seconds,
         "noise_mare_lit": [0.5 * v for v in noise["mare_lit"]],
         "noise_mare_binned": [0.5 * v for v in noise["mare_binned"]],
+        # Mitsuba's float32 rays skip a layer below the boundary: its optical depth (an upper bound over the object;
+        # the first order at incidence cosine mu is exp(-depth / mu) of the exact one; jaxsss.export.mitsuba).
+        "skipped_layer_optical_depth": [float(v) for v in xm.skipped_layer(scene)],
         "units": "image: linear radiance W/(mm^2 sr), float32; coverage: fraction of each pixel on the object",
         "date": time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime()), "load_average_1min": os.getloadavg()[0],
     }

@@ -3,6 +3,8 @@ which both jaxsss's renderer and the exported Mitsuba scene are checked -- trans
 
 ``mitsuba`` is a hard requirement here, as in test_mitsuba.py (``scalar_rgb``)."""
 
+import math
+
 import mitsuba as mi
 import numpy as np
 import pytest
@@ -108,3 +110,70 @@ def test_exported_scene_reproduces_the_exact_half_space_at_marbles_albedo():
     image = xm.render_mitsuba(MARBLE, spp=256, seed=3).image
     ratio = image[ref.mask].mean(axis=0) / ref.image[ref.mask].mean(axis=0)
     np.testing.assert_allclose(ratio, 1.0, atol=0.015)
+
+
+def _lit_face(mu_i: float, scale: float = 1.0, g: float = 0.9):
+    """The slab (face at z = 30 scale) of g09_sphere's medium under a directional light at cosine ``mu_i``, seen at
+    ``mu_o`` 0.725 along the light's flow, 12 x 12 pixels over a patch of 10 scale mm."""
+    s, mu_o = math.sqrt(1.0 - mu_i**2), 0.725
+    return parse_scene({
+        "mesh": {"builtin": "slab", "width": 200.0 * scale, "depth": 200.0 * scale, "thickness": 60.0 * scale},
+        "material": {"eta": 1.0, "g": g, "sigma_a": [0.05, 0.1, 0.2], "sigma_s_prime": 1.0},
+        "light": [{"type": "directional", "direction": [0.0, s, -mu_i], "intensity": [1.0, 2.0, 0.5]}],
+        "camera": {"position": [0.0, 150.0 * scale * math.sqrt(1 - mu_o**2), (150.0 * mu_o + 30.0) * scale],
+                   "look_at": [0.0, 0.0, 30.0 * scale], "up": [0.0, 0.0, 1.0], "fov_deg": 4.0,
+                   "resolution": [12, 12]},
+    })
+
+
+def test_single_scattering_face_by_hand_and_its_refusals():
+    from jaxsss.export.exact import single_scattering_face
+
+    scene = _lit_face(0.25)
+    ref = single_scattering_face(scene, 20.0)
+    assert ref.image.shape == (12, 12, 3) and ref.mask.all() and np.all(ref.image > 0)
+    # The centre pixel by hand: L_1 = a p(theta) E mu_i / (mu_i + mu_o), HG g = 0.9, E = (1, 2, 0.5) W/mm^2.
+    import dataclasses
+
+    from jaxsss.render.camera import camera_rays
+
+    rays = camera_rays(dataclasses.replace(scene.camera, spp=1))
+    d = np.asarray(rays.directions[6 * 12 + 6])
+    d = d / np.linalg.norm(d)
+    to_light = np.array([0.0, -math.sqrt(1 - 0.25**2), 0.25])
+    mu_o, c = -d[2], to_light @ d
+    p = (1 - 0.81) / (4 * np.pi * (1 + 0.81 - 1.8 * c) ** 1.5)
+    a = 10.0 / (10.0 + np.array([0.05, 0.1, 0.2]))  # sigma_s = sigma_s' / (1 - g) = 10 per mm
+    np.testing.assert_allclose(ref.image[6, 6], a * p * np.array([1.0, 2.0, 0.5]) * 0.25 / (0.25 + mu_o), rtol=1e-9)
+    # Invariant: ahead of the light's flow the first order is brighter than behind it (forward scattering).
+    behind = _lit_face(0.25)
+    behind = dataclasses.replace(behind, camera=dataclasses.replace(
+        behind.camera, position=(0.0, -np.asarray(behind.camera.position)[1], behind.camera.position[2])))
+    assert np.all(single_scattering_face(behind, 20.0).image[6, 6] < 0.2 * ref.image[6, 6])
+    with pytest.raises(ValueError, match="material.eta"):
+        single_scattering_face(_slab({"name": "marble", "eta": 1.3}), MARGIN)
+    with pytest.raises(ValueError, match="margin"):
+        single_scattering_face(scene, 0.0)
+
+
+@pytest.mark.parametrize("mu_i, scale", [(0.1, 1.0), (1.0, 1.0), (0.1, 0.1)])
+def test_mitsuba_skips_a_layer_below_the_boundary(mu_i, scale):
+    """Mitsuba's first order (``max_depth = 2``) against the exact one is ``exp(-sigma_t epsilon / mu_i)``:
+    single-precision rays leaving the null boundary start ``epsilon = RAY_EPSILON (1 + max |p_i|)`` inside it, so a
+    camera path skips that layer and the light's shadow ray does not (jaxsss.export.mitsuba, "the layer below the
+    boundary"). At the g = 0.9 references' scale grazing light loses a quarter of its first order; a tenth of the
+    scene loses a tenth as much. This test fails when Mitsuba stops skipping (then the references' grazing light is
+    right, and the note in docs/path_tracer.md, "Mitsuba's skipped layer", is stale)."""
+    from jaxsss.export.exact import single_scattering_face
+
+    mi.set_variant("scalar_rgb")
+    scene = _lit_face(mu_i, scale)
+    ref = single_scattering_face(scene, 20.0 * scale)
+    image = xm.render_mitsuba(scene, spp=1024, seed=3, max_depth=2).image
+    ratio = image[ref.mask].mean(axis=0) / ref.image[ref.mask].mean(axis=0)
+    tau = xm.skipped_layer(scene, points=[[0.0, 0.0, 30.0 * scale]])[0]  # the patch: |x|, |y| < 5 scale mm
+    # 3% of a 24% effect: at mu_i 0.1 the measured ratio moves by 1-2% with the samples and the variant (scalar_rgb
+    # 0.765 / 0.772 at 256 / 1024 spp, llvm_ad_rgb 0.755 at 1024 spp on the central pixels; the model 0.757).
+    np.testing.assert_allclose(ratio, np.exp(-tau / mu_i), rtol=0.03)
+    if scale == 1.0 and mu_i == 0.1:
+        assert np.all(ratio < 0.8)
