@@ -135,17 +135,14 @@ def point_lit_face(scene, margin: float) -> FaceReference:
         _refuse("light", [light.kind for light in scene.lights], "exactly one point light")
     face = _face_pixels(scene, margin)
     (h, w), n = face.shape, face.normal
-    light = scene.lights[0]
-    to_light = np.asarray(light.position, dtype=np.float64) - face.position
-    r2 = np.sum(to_light**2, axis=1)
-    mu_i = to_light @ n / np.sqrt(r2)
-    mu_o = -(face.view @ n)
+    to_light, e = _light_at(scene.lights[0], face.position)
+    mu_i, mu_o = to_light @ n, -(face.view @ n)
     on = face.on & (mu_i > 0.0) & (mu_o > 0.0)
     albedo = m["sigma_s"] / np.where(m["sigma_t"] > 0.0, m["sigma_t"], 1.0)
     f_r = np.asarray(half_space_reflection(np.where(on, mu_i, 1.0)[:, None], np.where(on, mu_o, 1.0)[:, None],
                                            albedo[None, :]))
-    # L = E f_r with the point light's irradiance E = I mu_i / r^2.
-    image = (np.asarray(light.intensity, dtype=np.float64) * (mu_i / r2)[:, None]) * f_r
+    # L = E f_r with the point light's irradiance on the face E = (I / r^2) mu_i.
+    image = e * mu_i[:, None] * f_r
     image = np.where(on[:, None], image, np.nan)
     return FaceReference(image.reshape(h, w, 3), on.reshape(h, w), np.where(on, mu_i, np.nan).reshape(h, w))
 
