@@ -111,6 +111,48 @@ def _light_at(light, p):
     return to_light / np.sqrt(r2)[:, None], intensity[None, :] / r2[:, None]
 
 
+class _LitFace(NamedTuple):
+    """A face's pixels lit by the scene's one light (:func:`_lit_face`); ``(P,)`` arrays unless noted."""
+
+    shape: tuple
+    on: np.ndarray  # bool: on the face, lit and seen
+    mu_i: np.ndarray
+    mu_o: np.ndarray
+    scatter_cos: np.ndarray  # cosine of the scattering angle, light's travel to the view (jaxsss.phase)
+    irradiance: np.ndarray  # (P, C) W/mm^2 on a surface facing the light
+    albedo: np.ndarray  # (C,) single-scattering albedo sigma_s / sigma_t
+    g: float
+
+
+def _lit_face(scene, margin: float, light_kinds: tuple, isotropic: bool) -> _LitFace:
+    """Check the scene (``eta = 1``, one light of ``light_kinds``, ``g = 0`` when ``isotropic``; ValueError naming
+    the key) and light the pixels of :func:`_face_pixels`."""
+    from jaxsss.export.support import medium_arrays
+
+    m = medium_arrays(scene.material.medium)
+    if m["eta"] != 1.0:
+        _refuse("material.eta", m["eta"], "1 (index-matched)")
+    if isotropic and m["g"] != 0.0:
+        _refuse("material.g", m["g"], "0 or none (isotropic scattering)")
+    if len(scene.lights) != 1 or scene.lights[0].kind not in light_kinds:
+        _refuse("light", [light.kind for light in scene.lights],
+                f"exactly one {' or '.join(light_kinds)} light")
+    face = _face_pixels(scene, margin)
+    to_light, e = _light_at(scene.lights[0], face.position)
+    mu_i, mu_o = to_light @ face.normal, -(face.view @ face.normal)
+    on = face.on & (mu_i > 0.0) & (mu_o > 0.0)
+    albedo = m["sigma_s"] / np.where(m["sigma_t"] > 0.0, m["sigma_t"], 1.0)
+    return _LitFace(face.shape, on, mu_i, mu_o, np.einsum("ij,ij->i", to_light, face.view), e, albedo, float(m["g"]))
+
+
+def _reference(image, lit: _LitFace) -> FaceReference:
+    """``image`` ``(P, C)`` as a :class:`FaceReference` (NaN off the lit face)."""
+    h, w = lit.shape
+    image = np.where(lit.on[:, None], image, np.nan)
+    return FaceReference(image.reshape(h, w, -1), lit.on.reshape(h, w),
+                         np.where(lit.on, lit.mu_i, np.nan).reshape(h, w))
+
+
 def point_lit_face(scene, margin: float) -> FaceReference:
     """Per-pixel exact radiance of the flat face the camera looks at (pixel centres), ``L = E f_r``.
 
@@ -123,28 +165,13 @@ def point_lit_face(scene, margin: float) -> FaceReference:
         margin: mm, > 0: pixels closer than this to the face's edges are left out (some diffusion lengths: the
             half-space has no edges).
     """
-    from jaxsss.export.support import medium_arrays
     from jaxsss.render.bssrdf import half_space_reflection
 
-    m = medium_arrays(scene.material.medium)
-    if m["eta"] != 1.0:
-        _refuse("material.eta", m["eta"], "1 (index-matched)")
-    if m["g"] != 0.0:
-        _refuse("material.g", m["g"], "0 or none (isotropic scattering)")
-    if len(scene.lights) != 1 or scene.lights[0].kind != "point":
-        _refuse("light", [light.kind for light in scene.lights], "exactly one point light")
-    face = _face_pixels(scene, margin)
-    (h, w), n = face.shape, face.normal
-    to_light, e = _light_at(scene.lights[0], face.position)
-    mu_i, mu_o = to_light @ n, -(face.view @ n)
-    on = face.on & (mu_i > 0.0) & (mu_o > 0.0)
-    albedo = m["sigma_s"] / np.where(m["sigma_t"] > 0.0, m["sigma_t"], 1.0)
-    f_r = np.asarray(half_space_reflection(np.where(on, mu_i, 1.0)[:, None], np.where(on, mu_o, 1.0)[:, None],
-                                           albedo[None, :]))
+    lit = _lit_face(scene, margin, ("point",), isotropic=True)
+    mu_i, mu_o = np.where(lit.on, lit.mu_i, 1.0), np.where(lit.on, lit.mu_o, 1.0)
+    f_r = np.asarray(half_space_reflection(mu_i[:, None], mu_o[:, None], lit.albedo[None, :]))
     # L = E f_r with the point light's irradiance on the face E = (I / r^2) mu_i.
-    image = e * mu_i[:, None] * f_r
-    image = np.where(on[:, None], image, np.nan)
-    return FaceReference(image.reshape(h, w, 3), on.reshape(h, w), np.where(on, mu_i, np.nan).reshape(h, w))
+    return _reference(lit.irradiance * mu_i[:, None] * f_r, lit)
 
 
 def single_scattering_face(scene, margin: float) -> FaceReference:
@@ -162,24 +189,10 @@ def single_scattering_face(scene, margin: float) -> FaceReference:
             and no texture (ValueError otherwise, naming the key).
         margin: mm, > 0: pixels closer than this to the face's edges are left out.
     """
-    from jaxsss.export.support import medium_arrays
+    from jaxsss.phase import hg_phase
 
-    m = medium_arrays(scene.material.medium)
-    if m["eta"] != 1.0:
-        _refuse("material.eta", m["eta"], "1 (index-matched)")
-    if len(scene.lights) != 1 or scene.lights[0].kind not in ("point", "directional"):
-        _refuse("light", [light.kind for light in scene.lights], "exactly one point or directional light")
-    face = _face_pixels(scene, margin)
-    (h, w), n = face.shape, face.normal
-    to_light, e = _light_at(scene.lights[0], face.position)
-    mu_i, mu_o = to_light @ n, -(face.view @ n)
-    on = face.on & (mu_i > 0.0) & (mu_o > 0.0)
-    # Henyey-Greenstein at the angle between the light's travel (-to_light) and the exit (-view).
-    g = float(m["g"])
-    cos_theta = np.einsum("ij,ij->i", to_light, face.view)
-    phase = (1.0 - g * g) / (4.0 * np.pi * (1.0 + g * g - 2.0 * g * cos_theta) ** 1.5)
-    albedo = m["sigma_s"] / np.where(m["sigma_t"] > 0.0, m["sigma_t"], 1.0)
+    lit = _lit_face(scene, margin, ("point", "directional"), isotropic=False)
+    phase = np.asarray(hg_phase(lit.scatter_cos, lit.g))
     # L_1 = a p E mu_i / (mu_i + mu_o).
-    image = albedo[None, :] * e * (phase * mu_i / np.where(on, mu_i + mu_o, 1.0))[:, None]
-    image = np.where(on[:, None], image, np.nan)
-    return FaceReference(image.reshape(h, w, 3), on.reshape(h, w), np.where(on, mu_i, np.nan).reshape(h, w))
+    return _reference(lit.albedo[None, :] * lit.irradiance
+                      * (phase * lit.mu_i / np.where(lit.on, lit.mu_i + lit.mu_o, 1.0))[:, None], lit)
