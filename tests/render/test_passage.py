@@ -186,6 +186,41 @@ def test_loss_table_shapes_and_bad_nodes():
         passage_loss_table(jnp.array([0.5]), (0.25,))
 
 
+def test_small_lookups_take_the_vectorised_step_and_agree_with_the_unrolled_one(monkeypatch):
+    """``node_interval`` and ``piecewise_linear`` below UNROLL_MIN_SIZE elements (a material's channels) take one
+    vectorised step along a node axis instead of one traced step per node; both give the same values and derivatives,
+    between the nodes, on them and beyond the ends, with ``v`` of more or fewer dimensions than ``f[0]``."""
+    import jax
+
+    from jaxsss.render import passage
+
+    nodes = (0.0, 0.2, 0.5, 1.0, 2.0)
+    v = jnp.array([-0.3, 0.0, 0.1, 0.2, 0.35, 1.0, 1.7, 2.0, 2.6])
+    f = jnp.asarray(np.random.default_rng(0).normal(size=(len(nodes), 4)))
+    outputs, node_axis_ops, vectorised = {}, {}, passage.UNROLL_MIN_SIZE
+    for threshold in (vectorised, 0):  # vectorised, then the unrolled loop
+        monkeypatch.setattr(passage, "UNROLL_MIN_SIZE", threshold)
+
+        def pl(v, f):
+            return passage.piecewise_linear(v[:, None], nodes, f)  # v (9, 1) against f[0] (4,)
+
+        def ni(v):
+            return passage.node_interval(v, nodes)
+
+        value, (dv, df) = pl(v, f), jax.jacfwd(lambda v, f: jnp.sum(pl(v, f), axis=1), argnums=(0, 1))(v, f)
+        low = passage.piecewise_linear(0.3, nodes, f)  # a scalar v against f[0] (4,)
+        i, t = ni(v)
+        outputs[threshold] = (value, dv, df, low, i, t, passage.node_interval(np.asarray(v), nodes, xp=np)[0])
+        node_axis_ops[threshold] = len(jax.make_jaxpr(pl)(v, f).eqns)
+    for a, b in zip(outputs[vectorised], outputs[0]):
+        np.testing.assert_allclose(a, b, rtol=1e-13, atol=1e-14)
+    i, t = outputs[0][4:6]
+    assert outputs[vectorised][4].dtype == i.dtype == jnp.int32
+    np.testing.assert_array_equal(i, [0, 0, 0, 1, 1, 3, 3, 3, 3])
+    np.testing.assert_allclose(f[0] + (f[1] - f[0]) * 0.5, outputs[0][0][2])  # halfway between the first two nodes
+    assert node_axis_ops[vectorised] < node_axis_ops[0] / 2
+
+
 def test_white_kernel_refuses_a_passage_without_a_shift():
     from jaxsss.medium import Medium
     from jaxsss.render.bssrdf import white_kernel, white_tables
