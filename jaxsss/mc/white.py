@@ -272,7 +272,9 @@ def _hermite(x, xs, ys):
     m_inner = (ys[..., 2:] - ys[..., :-2]) / (xs[2:] - xs[:-2])
     m = jnp.concatenate([sec[..., :1], m_inner, sec[..., -1:]], axis=-1)
     xc = jnp.clip(x, xs[0], xs[-1])
-    i = jnp.clip(jnp.searchsorted(xs, xc, side="right") - 1, 0, M - 2)
+    # A comparison with every node where that is small (jnp.searchsorted's default traces a binary-search scan).
+    method = "compare_all" if int(np.prod(jnp.shape(xc))) * M <= 1 << 20 else "scan"
+    i = jnp.clip(jnp.searchsorted(xs, xc, side="right", method=method) - 1, 0, M - 2)
     h = dx[i]
     t = (xc - xs[i]) / h
     y0, y1 = jnp.take_along_axis(ys, i, axis=-1), jnp.take_along_axis(ys, i + 1, axis=-1)

@@ -1221,6 +1221,7 @@ def _white_kernel(medium: Medium, sources: WhiteSources, mus: tuple, shift: bool
     # written to the persistent compilation cache.
     from jaxsss.mc.white import white_table_profile as white_mc_profile
     from jaxsss.mc.white_family import white_family_block_profile
+    from jaxsss.render.passage import piecewise_linear
 
     n_grid = round(math.log10(GRID_RHO_MAX / GRID_RHO_MIN) * GRID_PER_DECADE) + 1
     rho = GRID_RHO_MIN * 10.0 ** (np.arange(n_grid) / GRID_PER_DECADE)
@@ -1263,9 +1264,10 @@ def _white_kernel(medium: Medium, sources: WhiteSources, mus: tuple, shift: bool
     length = None
     if shift:
         sigma_t_prime = sigma_a + sigma_s_prime
+        # Linear in the albedo on the table's (concrete) nodes, held beyond them.
         ratio = jnp.stack([jnp.ones_like(sigma_t_prime)] + [  # normal incidence: no shift to scale
-            jnp.interp(sigma_s_prime / sigma_t_prime, jnp.asarray(SHIFT_ALBEDO),
-                       jnp.asarray(shift_ratio_table(g))[:, OBLIQUE_MUS.index(mu)]) for mu in mus[1:]])
+            piecewise_linear(sigma_s_prime / sigma_t_prime, SHIFT_ALBEDO,
+                             shift_ratio_table(g)[:, OBLIQUE_MUS.index(mu)]) for mu in mus[1:]])
         # Oblique incidence: forward shift (SHIFT_RATIO) sin(theta_t) / sigma_t'.
         length = ratio / sigma_t_prime
     return WhiteKernel(log_R - 2.0 * jnp.log(sigma_s), sigma_s, length)

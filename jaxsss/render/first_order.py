@@ -272,13 +272,19 @@ def first_order_profile(rho, mu: float, albedo, g: float = 0.0):
     photon at cosine ``mu`` (index-matched), averaged over azimuth about the entry; ``rho`` ``(G,)``, ``albedo``
     ``(C,)`` (differentiable) give ``(G, C)``. Below the white tables' first bin (``rho < 0.01``) it is held at its
     mean over that disc, as the tables hold their profiles there."""
-    f, cumulative = (jnp.asarray(a) for a in _first_order_shape(float(mu), float(g)))
+    from jaxsss.render.passage import piecewise_linear
+
+    f, cumulative = _first_order_shape(float(mu), float(g))
     a = jnp.asarray(albedo)[None, :]
-    log_grid = jnp.asarray(np.log(_X_GRID))
+    log_grid = np.log(_X_GRID)
     rho = jnp.asarray(rho)[:, None]
 
     def at(table, x):
-        return jnp.exp(jnp.interp(jnp.log(x), log_grid, jnp.log(jnp.maximum(table, 1e-300)), right=-700.0))
+        # Linear in log x on the (concrete) grid, held below it and 0 beyond it (a few values per channel: one
+        # vectorised step, jaxsss.render.passage.UNROLL_MIN_SIZE, where jnp.interp traced a binary-search scan).
+        log_x = jnp.log(x)
+        inside = piecewise_linear(log_x, log_grid, np.log(np.maximum(table, 1e-300))[:, None])
+        return jnp.exp(jnp.where(log_x > log_grid[-1], -700.0, inside))
 
     # In mean free paths x = rho sigma_t / sigma_s = rho / a: R1 = F(rho / a) / a.
     point = at(f, rho / a) / a

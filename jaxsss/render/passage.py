@@ -333,11 +333,12 @@ def node_interval(v, nodes, xp=jnp):
     return i, (v - lo) / (hi - lo)
 
 
-UNROLL_MIN_SIZE = 1 << 14
+UNROLL_MIN_SIZE = 1 << 17
 """Element count from which :func:`node_interval` and :func:`piecewise_linear` unroll their loop over the nodes (one
-elementwise step per node, which fuses over a block of pairs). Below it they take one vectorised step along a node
-axis: a material's tables are a few values each, and unrolled they were a third of a white-kernel image's traced
-program (piecewise_linear: 1972 of 6321 operations for the marble teapot, each traced, lowered and compiled)."""
+elementwise step per node, which fuses over a block of pairs: 2^16 pairs times the nodes and channels). Below it they
+take one vectorised step along a node axis: a material's tables (up to ~8e4 values, the curvature correction's) are
+computed once per image, and unrolled they were a third of a white-kernel image's traced program (piecewise_linear:
+1972 of 6321 operations for the marble teapot, each traced, lowered and compiled)."""
 
 
 def _vectorised(shape: tuple, n_nodes: int) -> bool:
@@ -353,8 +354,10 @@ def piecewise_linear(v, nodes, f):
     shape = jnp.broadcast_shapes(jnp.shape(v), jnp.shape(f)[1:])
     if _vectorised(shape, len(nodes)):
         # The same sum of clipped ramps along a leading node axis (a material's few values: UNROLL_MIN_SIZE).
-        axis = (-1,) + (1,) * len(shape)
-        lo, width = np.asarray(nodes[:-1]).reshape(axis), np.diff(np.asarray(nodes)).reshape(axis)
+        # The nodes in v's dtype, as the unrolled loop's Python floats are (float32 values stay float32).
+        axis, dtype = (-1,) + (1,) * len(shape), jnp.result_type(v, 0.0)
+        lo = jnp.asarray(np.asarray(nodes[:-1]).reshape(axis), dtype=dtype)
+        width = jnp.asarray(np.diff(np.asarray(nodes)).reshape(axis), dtype=dtype)
         slopes = (f[1:] - f[:-1]).reshape((len(nodes) - 1,) + (1,) * (len(shape) + 1 - jnp.ndim(f)) + f.shape[1:])
         ramps = jnp.clip(jnp.broadcast_to(v, shape)[None] - lo, 0.0, width)
         return f[0] + jnp.sum(slopes / width * ramps, axis=0)

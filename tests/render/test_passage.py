@@ -212,6 +212,8 @@ def test_small_lookups_take_the_vectorised_step_and_agree_with_the_unrolled_one(
         i, t = ni(v)
         outputs[threshold] = (value, dv, df, low, i, t, passage.node_interval(np.asarray(v), nodes, xp=np)[0])
         node_axis_ops[threshold] = len(jax.make_jaxpr(pl)(v, f).eqns)
+        assert pl(v.astype(jnp.float32), f.astype(jnp.float32)).dtype == jnp.float32  # float32 stays float32
+        assert ni(v.astype(jnp.float32))[1].dtype == jnp.float32
     for a, b in zip(outputs[vectorised], outputs[0]):
         np.testing.assert_allclose(a, b, rtol=1e-13, atol=1e-14)
     i, t = outputs[0][4:6]
