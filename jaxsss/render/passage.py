@@ -349,7 +349,8 @@ def _vectorised(shape: tuple, n_nodes: int) -> bool:
 def piecewise_linear(v, nodes, f):
     """The linear interpolant of ``f`` ``(N, ...)`` at the sorted ``nodes`` ``(N,)`` (concrete), held beyond the ends,
     at ``v`` (broadcast against ``f[0]``): a sum of clipped ramps, with no index (elementwise, so it fuses; on the
-    CPU it took a tenth of the time of an interval lookup and two gathers)."""
+    CPU it took a tenth of the time of an interval lookup and two gathers). Over fewer than :data:`UNROLL_MIN_SIZE`
+    elements the ramps are one array along a node axis instead of one traced step per node."""
     nodes = tuple(float(n) for n in np.asarray(nodes))
     shape = jnp.broadcast_shapes(jnp.shape(v), jnp.shape(f)[1:])
     if _vectorised(shape, len(nodes)):
