@@ -341,9 +341,16 @@ computed once per image, and unrolled they were a third of a white-kernel image'
 1972 of 6321 operations for the marble teapot, each traced, lowered and compiled)."""
 
 
+VECTORISED_MAX_ELEMENTS = 1 << 22
+"""The most elements the vectorised step's node axis may hold (the values times the nodes: 32 MB in float64). The
+largest table today holds 1.2e6 (the curvature correction's 77,517 values by 15 intervals)."""
+
+
 def _vectorised(shape: tuple, n_nodes: int) -> bool:
-    """Whether a lookup among ``n_nodes`` nodes over ``shape`` takes the vectorised step (:data:`UNROLL_MIN_SIZE`)."""
-    return n_nodes > 2 and int(np.prod(shape, dtype=np.int64)) < UNROLL_MIN_SIZE
+    """Whether a lookup among ``n_nodes`` nodes over ``shape`` takes the vectorised step (:data:`UNROLL_MIN_SIZE`,
+    :data:`VECTORISED_MAX_ELEMENTS`)."""
+    size = int(np.prod(shape, dtype=np.int64))
+    return n_nodes > 2 and size < UNROLL_MIN_SIZE and size * (n_nodes - 1) <= VECTORISED_MAX_ELEMENTS
 
 
 def piecewise_linear(v, nodes, f):

@@ -221,6 +221,10 @@ def test_small_lookups_take_the_vectorised_step_and_agree_with_the_unrolled_one(
     np.testing.assert_array_equal(i, [0, 0, 0, 1, 1, 3, 3, 3, 3])
     np.testing.assert_allclose(f[0] + (f[1] - f[0]) * 0.5, outputs[0][0][2])  # halfway between the first two nodes
     assert node_axis_ops[vectorised] < node_axis_ops[0] / 2
+    # The node axis is bounded in memory: many values on a fine grid keep the unrolled loop.
+    monkeypatch.setattr(passage, "UNROLL_MIN_SIZE", vectorised)
+    assert passage._vectorised((20_000,), 23) and not passage._vectorised((20_000,), 401)
+    assert not passage._vectorised((vectorised,), 3)
 
 
 def test_white_kernel_refuses_a_passage_without_a_shift():
