@@ -41,17 +41,18 @@ Conventions matched (units: mm, so Mitsuba's unitless lengths are mm and its rad
 
 **A bias of the references: the layer below the boundary.** Mitsuba (single precision) starts every ray that leaves
 a surface :data:`RAY_EPSILON` ``(1 + max |p_i|)`` off it along the normal (``p`` in scene units, mm). A camera path
-that crosses the null boundary into the medium therefore skips a layer of that thickness ``epsilon``; the shadow
-ray from a scattering event to the light does not. The first order comes out ``exp(-sigma_t epsilon / mu_i)`` of
-its exact value (``mu_i`` the light's cosine): measured, 0.99-1.02 of that at ``mu_i`` 0.1 and 1 with the scene
-at its size and at a tenth of it (tests/export/test_exact.py), 0.97 at ``mu_i`` 0.05, and 0.91 with the scene ten
-times larger (then 6% of the exact first order is left at ``mu_i`` 0.1). The bias is a property of the scene's optical size, not of its units:
-:func:`skipped_layer` gives its optical depth. At the g = 0.9 references' scale (``sigma_t`` 10.1 per mm, face 30 mm
-from the origin: 0.028) a uniformly lit face's radiance, every order, came out 12% / 6% / 0% low at ``mu_i`` 0.1 /
-0.15 / 0.25 against jaxsss's Monte Carlo, which adding-doubling confirms (docs/path_tracer.md, "Mitsuba's skipped
-layer"). On a curved object the effect is far smaller, because the light at a grazing pixel entered nearby at steeper
-cosines: the g = 0.9 sphere's reference moved to a 5.6 times thicker layer changed by at most about 1% in any bin of
-the light's cosine. At the g = 0 references' scale (``sigma_t`` about 1 per mm) the layer is ten times thinner.
+that crosses the null boundary into the medium therefore skips a layer of that thickness ``epsilon``; the shadow ray
+from a scattering event to the light does not. The first order comes out ``exp(-sigma_t epsilon / mu_i)`` of its
+exact value (``mu_i`` the light's cosine): measured, 0.99-1.02 of that at ``mu_i`` 0.1 and 1 with the scene at its
+size and at a tenth of it (tests/export/test_exact.py), 0.97 at ``mu_i`` 0.05, and 0.91 with the scene ten times
+larger (then 6% of the exact first order is left at ``mu_i`` 0.1). The bias is a property of the scene's optical
+size, not of its units: :func:`skipped_layer` gives its optical depth. At the g = 0.9 references' scale (``sigma_t``
+10.1 per mm, face 30 mm from the origin: 0.028) a uniformly lit face's radiance, every order, came out 12% / 6% / 0%
+low at ``mu_i`` 0.1 / 0.15 / 0.25 against jaxsss's Monte Carlo, which adding-doubling confirms (docs/path_tracer.md,
+"Mitsuba's skipped layer"). On a curved object the effect is far smaller, because the light at a grazing pixel
+entered nearby at steeper cosines: the g = 0.9 sphere's reference moved to a 5.6 times thicker layer changed by at
+most about 1% in any bin of the light's cosine. At the g = 0 references' scale (``sigma_t`` about 1 per mm) the
+layer is ten times thinner.
 
 Not representable, refused by :func:`jaxsss.export.support.check_exportable`: blockers, layer textures, material
 textures, a non-black background. ``output.exposure`` is a display setting of jaxsss's sRGB
