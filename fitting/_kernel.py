@@ -685,16 +685,24 @@ def fit(r, y, se, eta, d, r_lo, r_hi, auto, cfg: Config):
     return finish(*sol, mask, r, y, se, eta, d, cfg), theta0, mask, r_cut, flags
 
 
-def solve_params(theta0, mask, r, y, se, eta, d, cfg: Config):
-    """The fitted ``(sigma_a, sigma_s')`` only: what :func:`fitting.fit_jacobian_wrt_data` differentiates (an
-    Optimistix solve with its implicit adjoint, started at the solution)."""
-    w, _ = weights(y, se, cfg)
-    solver = resolve_solver(cfg.solver).make(rtol=cfg.rtol, atol=cfg.atol)
-    fn = lambda th, a: residuals(th, (*a, cfg))  # noqa: E731
-    sol = optx.least_squares(fn, solver, theta0, args=(r, y, w, mask, eta, d), max_steps=cfg.max_steps, throw=False)
-    sa, ss, _, _ = unpack(sol.value, eta, cfg)
-    return jnp.stack([sa, ss])
+def solution_jacobian(theta, mask, r, y, se, eta, d, cfg: Config):
+    """``d (sigma_a, sigma_s') / d y`` at a least-squares solution ``theta``, ``(2, K, N)``: what
+    :func:`fitting.fit_jacobian_wrt_data` returns per problem. The implicit function theorem on the solution's
+    stationarity, ``grad_theta S(theta, y) = 0`` with ``S = |r|^2 / 2`` (the weights ``1 / y`` move with the data):
+    ``d theta / d y = -(d2S / d theta2)^-1 d2S / d theta dy``, with the full Hessian (Optimistix's implicit adjoint
+    differentiates the same condition), then the chain rule through :func:`unpack`. No solve is traced: ``theta`` is
+    the fit's own solution."""
+    def grad_s(th, yy):
+        w, _ = weights(yy, se, cfg)
+        return jax.grad(lambda t: 0.5 * jnp.sum(residuals(t, (r, yy, w, mask, eta, d, cfg)) ** 2))(th)
+
+    hessian = jax.jacfwd(grad_s, 0)(theta, y)  # (p, p)
+    mixed = jax.jacfwd(grad_s, 1)(theta, y)  # (p, K, N)
+    p = theta.shape[0]
+    dtheta = -jnp.linalg.solve(hessian, mixed.reshape(p, -1)).reshape(mixed.shape)
+    dphys = jax.jacfwd(lambda t: jnp.stack(unpack(t, eta, cfg)[:2]))(theta)  # (2, p)
+    return jnp.tensordot(dphys, dtheta, axes=1)
 
 
 __all__ = ["Config", "LMState", "TRACES", "data_guess", "finish", "fit", "lm_block", "lm_init", "lm_solve",
-           "predict", "solve_params", "solve_starts", "starts", "valley_starts", "with_valley"]
+           "predict", "solution_jacobian", "solve_starts", "starts", "valley_starts", "with_valley"]

@@ -1,15 +1,13 @@
 """Least-squares solvers for the fits, chosen by name from a validated registry (:data:`SOLVERS`).
 
 ``gauss_newton`` and ``dogleg`` are Optimistix solvers run through :func:`optimistix.least_squares`; fitted parameters
-are differentiable in the data by the implicit function theorem (:func:`fitting.fit_jacobian_wrt_data`, with the
-Optimistix solver that ``make`` returns).
+are differentiable in the data by the implicit function theorem at the solution, whichever solver found it
+(:func:`fitting.fit_jacobian_wrt_data`).
 
 - ``levenberg_marquardt`` (default): a small Levenberg-Marquardt loop of the fitting kernel
   (:func:`fitting._kernel.lm_step`: Marquardt scaling, Nielsen damping, stop when the undamped Gauss-Newton step is
   below ``atol + rtol |theta|``). It is a few array operations per iteration, so it compiles in a fraction of
-  Optimistix's time, and batches run it in blocks that retire converged problems (no waiting for the slowest). The
-  implicit derivative (:func:`fitting.fit_jacobian_wrt_data`) uses :class:`optimistix.LevenbergMarquardt`, started
-  at the solution.
+  Optimistix's time, and batches run it in blocks that retire converged problems (no waiting for the slowest).
 - ``gauss_newton``: :class:`optimistix.GaussNewton` -- undamped; fastest from a good start, may fail from a bad one.
 - ``dogleg``: :class:`optimistix.Dogleg` -- trust region mixing the Gauss-Newton and steepest-descent steps.
 
