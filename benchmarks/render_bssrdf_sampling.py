@@ -151,6 +151,7 @@ def bssrdf_exitance(scene, geometry, x, n, K: int, seed: int = 0, chunk: int = 1
     Returns ``(mean (Q, C), variance of the mean (Q, C), hits per sample)``."""
     global _KERNEL
     from jaxsss.render.lights import light_field
+    from jaxsss.validate import trusted_traces
 
     if _KERNEL is None:
         _KERNEL = _make_kernel()
@@ -207,13 +208,16 @@ def bssrdf_exitance(scene, geometry, x, n, K: int, seed: int = 0, chunk: int = 1
         size = _padded(m)
         pad = size - m
         weight = np.where(pdf > 0, 1.0 / np.maximum(pdf, 1e-300), 0.0)
-        val = np.asarray(_KERNEL(
-            medium,
-            np.concatenate([dist, np.ones(pad)]),
-            np.concatenate([lf.cos, np.zeros((pad, lf.cos.shape[1]))]),
-            np.concatenate([lf.irradiance, np.zeros((pad,) + lf.irradiance.shape[1:])]),
-            np.concatenate([weight, np.zeros(pad)]),
-        ))[:m]
+        # The scene's medium was validated when it was built: no traced checks (a host callback keeps the kernel out
+        # of JAX's persistent cache, and it compiles once per padded size).
+        with trusted_traces():
+            val = np.asarray(_KERNEL(
+                medium,
+                np.concatenate([dist, np.ones(pad)]),
+                np.concatenate([lf.cos, np.zeros((pad, lf.cos.shape[1]))]),
+                np.concatenate([lf.irradiance, np.zeros((pad,) + lf.irradiance.shape[1:])]),
+                np.concatenate([weight, np.zeros(pad)]),
+            ))[:m]
         # Sum the hits of each sample, then the per-point sums of f and f^2 over its K samples.
         f = np.zeros((p * K, n_c))
         np.add.at(f, ray, val)

@@ -10,6 +10,8 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from jaxsss.validate import trusted_traces
+
 
 def central_difference(f, x, rel_step=1e-6):
     """Central finite-difference gradient of scalar ``f`` at float64 array ``x``, steps ``rel_step * |x_i|``."""
@@ -31,7 +33,16 @@ def assert_grad_matches_fd(f, x, *, rel_step=1e-6, rtol=1e-6, atol=0.0, jit=Fals
     pays for a large ``f`` evaluated many times (the refracted exit distribution: 10 s op by op against 3 s), not for
     a small one, nor for one that builds a large jitted program itself (the curved white kernel: 20 s against 39 s);
     measured per test, docs/architecture.md ("The suite's time, 2026-11-28").
+
+    ``f`` is traced without the traced argument checks (:func:`jaxsss.validate.trusted_traces`): they are host
+    callbacks, which keep a compiled program (``jit=True``, or an ``f`` that is jitted itself) out of JAX's persistent
+    cache. Gradients are checked at valid points; bad input has tests of its own.
     """
+    with trusted_traces():
+        _assert_grad_matches_fd(f, x, rel_step, rtol, atol, jit)
+
+
+def _assert_grad_matches_fd(f, x, rel_step, rtol, atol, jit):
     x = jnp.asarray(x, dtype=jnp.float64)
     grad = jax.jit(jax.grad(f)) if jit else jax.grad(f)
     g_rev = np.asarray(grad(x))

@@ -6,6 +6,9 @@ adds r = 0, and tests/profiles/test_quadpole.py differentiates the quadpole righ
 attenuated dipole, the quadpole (depth l_u, offset l_u / 2) and the Eq. 15 blend at gamma = 2 pi / 3 (quadpole and
 multipole, 4 pairs) with the view depth in {1e-4, 1e-2, 1, 10, 1e4} l_u, so the blend's slab thickness l_u + h spans
 the slab axis of the matrix. Values and gradients must be finite; float32 within the stated distance of float64.
+The float64 values are computed with the traced argument checks (none may fire on the grid); the gradients and the
+float32 values without them (:func:`jaxsss.validate.trusted_traces`): a check is a host callback, which keeps a program
+out of JAX's persistent cache, and those programs would be compiled again in every run.
 
 Stated float32 tolerances (relative to float64 where the float64 value exceeds 1e-30; measured maxima in brackets):
 - oblique profile (both kernels): 2e-5 [5.2e-6];
@@ -26,6 +29,7 @@ import numpy as np
 import pytest
 
 from jaxsss.medium import Medium
+from jaxsss.validate import trusted_traces
 from jaxsss.profiles import (
     attenuated_dipole_profile,
     blended_exitance,
@@ -94,11 +98,12 @@ def _rel(v32, v64, resolved):
 
 def test_core_values_gradients_and_float32(core_inputs):
     x = jnp.asarray(core_inputs)
-    v64 = np.asarray(jax.jit(core)(x))
+    v64 = np.asarray(jax.jit(core)(x))  # with the traced argument checks: none fires on the grid
     assert np.all(np.isfinite(v64)) and np.all(v64 >= 0)
-    jac = jax.jit(jax.vmap(jax.jacfwd(core)))(x)
+    with trusted_traces():  # (module docstring)
+        jac = jax.jit(jax.vmap(jax.jacfwd(core)))(x)
+        v32 = jax.jit(core)(jnp.asarray(core_inputs, dtype=jnp.float32))
     assert bool(jnp.all(jnp.isfinite(jac))), np.argwhere(~np.isfinite(np.asarray(jac)))[:5]
-    v32 = jax.jit(core)(jnp.asarray(core_inputs, dtype=jnp.float32))
     assert v32.dtype == jnp.float32
     v32 = np.asarray(v32, dtype=np.float64)
     assert np.all(np.isfinite(v32))
@@ -112,10 +117,11 @@ def test_core_values_gradients_and_float32(core_inputs):
 def test_blend_values_gradients_and_float32(blend_inputs):
     x = jnp.asarray(blend_inputs)
     f = jax.jit(jax.vmap(blend))
-    v64 = np.asarray(f(x))
+    v64 = np.asarray(f(x))  # with the traced argument checks: none fires on the grid
     assert np.all(np.isfinite(v64))
-    assert bool(jnp.all(jnp.isfinite(jax.jit(jax.vmap(jax.jacfwd(blend)))(x))))
-    v32 = np.asarray(f(jnp.asarray(blend_inputs, dtype=jnp.float32)), dtype=np.float64)
+    with trusted_traces():  # (module docstring)
+        assert bool(jnp.all(jnp.isfinite(jax.jit(jax.vmap(jax.jacfwd(blend)))(x))))
+        v32 = np.asarray(f(jnp.asarray(blend_inputs, dtype=jnp.float32)), dtype=np.float64)
     assert np.all(np.isfinite(v32))
     ok = np.abs(v64[:, 0]) > 1e-30
     assert _rel(v32[:, 0], v64[:, 0], ok) < 5e-2
