@@ -82,6 +82,10 @@ HEAVY_FIRST = (
     "tests/render/test_cache.py",  # 57
     "tests/test_notebooks.py::TestNotebook_fit_measured_materials",  # 53
     "tests/render/test_bssrdf.py",  # 52
+    # Warm seconds (2026-11-30): last in collection order, test_stability left the other worker idle for the run's
+    # final 34 s (per-worker timeline of a `make test`-like run); test_passage ran fourth from the end.
+    "tests/render/test_passage.py",  # 47 warm
+    "tests/test_stability.py",  # 38 warm
     "tests/test_benchmarks_render.py",  # 45
     "tests/fitting/test_mc_model.py",  # 38
     "tests/mc/test_white.py",  # 37
