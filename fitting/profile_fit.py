@@ -728,7 +728,9 @@ def fit_jacobian_wrt_data(r, R=None, *, T=None, R_stderr=None, T_stderr=None, et
     The fit (same arguments as :func:`fit_profile`, one profile) is solved first; at its solution the sum of squares
     is stationary in the log-parameters, and the implicit function theorem on that condition gives the derivatives
     (:func:`fitting._kernel.solution_jacobian`). The fit range is held fixed (a discrete choice). Linear error
-    propagation follows: ``cov(theta) ~ J_data cov(data) J_data^T``.
+    propagation follows: ``cov(theta) ~ J_data cov(data) J_data^T``. Where the data do not fix the parameters (a
+    singular or near-singular Hessian of the sum of squares) the derivatives are non-finite or huge: check the fit's
+    standard errors first.
 
     Returns:
         ``{"R": dR, "T": dT}`` for the outputs given, each of shape ``(*channels, 2, N)``: ``[..., 0, i]`` is
