@@ -180,8 +180,8 @@ def fit_free_g(r, R=None, *, R_stderr=None, eta: float, r_min: float | None = No
     args = (jnp.asarray(r), jnp.asarray(np.where(keep, R, 0.0)), jnp.asarray(weight), float(eta), lo, hi, family)
     # Inputs checked on the host, parameters valid by construction (exp, the sigmoid in g): no traced checks, so no
     # host callbacks and the persistent cache stores the programs (they compiled for 20 s in every process).
-    # Through jaxsss._exported: a new process loads both programs instead of tracing them (the vmapped solve's trace
-    # is most of a warm first fit).
+    # Through jaxsss._exported: a new process loads both programs instead of tracing them (the solve's trace is most of
+    # a warm first fit's overhead).
     with trusted_traces():
         solve_all = compiled_program("free-g-solve", _solve_all, (thetas, args), (max_steps,))
         values, costs, ok = (np.asarray(a) for a in solve_all(thetas, args))
