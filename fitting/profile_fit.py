@@ -759,7 +759,8 @@ def fit_jacobian_wrt_data(r, R=None, *, T=None, R_stderr=None, T_stderr=None, et
     cut = flat(fit.r_cut)
     mask = usable & (inside & (rr[None, :] >= jnp.minimum(cut, flat(fit.r_min))[:, None]))[:, None, :]
 
-    key, ops = _split(cfg)
+    # The solver's settings do not enter the derivatives at the solution: one program whatever they were.
+    key, ops = _split(cfg._replace(solver="", rtol=0.0, atol=0.0, max_steps=0))
     with trusted_traces():  # the data were checked by the fit above: no host callbacks, so the cache stores it
         diag = _compiled_data_jacobian(key)(rr, ops, theta, mask, y, se, jnp.asarray(pb.eta), jnp.asarray(pb.d))
     out = {}
