@@ -186,10 +186,9 @@ def fit_free_g(r, R=None, *, R_stderr=None, eta: float, r_min: float | None = No
         solve_all = compiled_program("free-g-solve", _solve_all, (thetas, args), (max_steps,))
         values, costs, ok = (np.asarray(a) for a in solve_all(thetas, args))
         best = int(np.nanargmin(np.where(np.isfinite(costs), costs, np.inf)))
-        theta = jnp.asarray(values[best])
-        jacobian = compiled_program("free-g-jacobian", _jacobian, (theta, args))
-        jac, res = (np.asarray(a) for a in jacobian(theta, args))
-        theta = np.asarray(theta)
+        theta = values[best]
+        at_theta = (jnp.asarray(theta), args)
+        jac, res = (np.asarray(a) for a in compiled_program("free-g-jacobian", _jacobian, at_theta)(*at_theta))
     m, p = int(keep.sum()), 3
     s2 = float(res @ res) / max(m - p, 1)
     cov_theta = (max(1.0, s2) if absolute else s2) * np.linalg.pinv(jac.T @ jac)
