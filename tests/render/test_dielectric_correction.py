@@ -8,6 +8,7 @@ import numpy as np
 import pytest
 
 from jaxsss.medium import Medium
+from jaxsss.render import bssrdf
 from jaxsss.render.bssrdf import white_kernel, white_tables
 from jaxsss.render.curvature_correction import (
     CORRECTION_ALBEDO,
@@ -27,6 +28,7 @@ from jaxsss.render.dielectric_correction import (
     load_dielectric_correction,
 )
 from tests.gradcheck import assert_grad_matches_fd
+from tests.render.kernel_calls import kernel_pair, kernel_sources
 
 _table = jax.jit(dielectric_log_correction_table, static_argnums=(2, 4))
 
@@ -95,21 +97,27 @@ def test_the_kernel_keeps_the_plane_and_takes_only_the_near_part(monkeypatch):
     flux = jnp.ones((3, 4, k, 1)).at[:, 1:4].set(0.0)
     up = jnp.tile(jnp.array([[0.0, 0.0, 1.0]]), (3, 1))
     flat = jnp.array([[0.5, 0.0, 0.0], [2.0, 1.0, 0.0], [6.0, 0.0, 0.0]])
-    np.testing.assert_allclose(np.asarray(corrected.pair(flat, corrected.sources(flux), (up, up))),
-                               np.asarray(flat_kernel.pair(flat, flat_kernel.sources(flux))), rtol=1e-6)
+    np.testing.assert_allclose(np.asarray(kernel_pair(corrected, flat, kernel_sources(corrected, flux), (up, up))),
+                               np.asarray(kernel_pair(flat_kernel, flat, kernel_sources(flat_kernel, flux))), rtol=1e-6)
     # The same kernel with Q = 1 everywhere: the diffusion ratio, capped at the same sphere (two channels: a shape the
-    # curvature table's compiled program has not seen, so the patch is traced).
+    # curvature table's compiled program has not seen, so the patch is traced). The patched program is then dropped
+    # from the jitted table's cache: a later test on this worker with two channels at eta 1.4
+    # (tests/render/test_dielectric_current.py's kernels) got Q = 1 from it.
     monkeypatch.setattr(dc, "dielectric_log_correction_table",
                         lambda r_lu, kappa_lu, mus_, albedo, eta: jnp.zeros((len(mus_),) + kappa_lu.shape))
     twice = Medium(sigma_a=jnp.array([0.03, 0.03]), sigma_s_prime=jnp.array([0.97, 0.97]), eta=1.4)
-    ratio_only = white_kernel(twice, sources, mus, shift=True, curvature=True)
+    try:
+        ratio_only = white_kernel(twice, sources, mus, shift=True, curvature=True)
+    finally:
+        bssrdf._curvature_table._cached.clear_cache()
     theta = np.radians([10.0, 55.0, 70.0])  # chords 0.87, 4.6 and 5.7 mm on a 5 mm sphere (sigma_t' = 1 / mm)
     x = np.stack([np.sin(theta), np.zeros(3), np.cos(theta)], axis=1)
     p = np.tile([[0.0, 0.0, 1.0]], (3, 1))
     normals = (jnp.asarray(x), jnp.asarray(p))
     delta = jnp.asarray(5.0 * (x - p))
-    a = np.asarray(ratio_only.pair(delta, ratio_only.sources(jnp.concatenate([flux, flux], axis=-1)), normals))[..., :1]
-    c = np.asarray(corrected.pair(delta, corrected.sources(flux), normals))
+    doubled = kernel_sources(ratio_only, jnp.concatenate([flux, flux], axis=-1))
+    a = np.asarray(kernel_pair(ratio_only, delta, doubled, normals))[..., :1]
+    c = np.asarray(kernel_pair(corrected, delta, kernel_sources(corrected, flux), normals))
     assert np.all(c <= a * (1.0 + 1e-9)), (c, a)
     assert np.all(c[1] < 0.97 * a[1]), (c, a)  # Q 0.93 at 4.6 l_u (measured 2026-11-29)
 
