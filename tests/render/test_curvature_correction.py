@@ -13,6 +13,7 @@ from jaxsss.render.curvature_correction import (CORRECTION_ALBEDO, CORRECTION_D,
                                                 CORRECTION_MUS, CORRECTION_RADII, KAPPA_MAX_MARCHED, _tally,
                                                 load_curvature_correction, log_correction_table, renderer_model)
 from tests.gradcheck import assert_grad_matches_fd
+from tests.render.kernel_calls import kernel_pair, kernel_sources
 
 _table = jax.jit(log_correction_table, static_argnums=2)
 
@@ -88,8 +89,8 @@ def test_the_kernel_keeps_the_plane_and_raises_the_far_field():
     flux = jnp.ones((3, 4, k, 1)).at[:, 1:4].set(0.0)
     up = jnp.tile(jnp.array([[0.0, 0.0, 1.0]]), (3, 1))
     flat = jnp.array([[0.5, 0.0, 0.0], [2.0, 1.0, 0.0], [6.0, 0.0, 0.0]])
-    np.testing.assert_allclose(np.asarray(corrected.pair(flat, corrected.sources(flux), (up, up))),
-                               np.asarray(plain.pair(flat, plain.sources(flux), (up, up))), rtol=1e-10)
+    np.testing.assert_allclose(np.asarray(kernel_pair(corrected, flat, kernel_sources(corrected, flux), (up, up))),
+                               np.asarray(kernel_pair(plain, flat, kernel_sources(plain, flux), (up, up))), rtol=1e-10)
     # Pairs on a sphere of radius 5 mm (5 l_u) at central angles 10, 60 and 150 degrees.
     theta = np.radians([10.0, 60.0, 150.0])
     x = np.stack([np.sin(theta), np.zeros(3), np.cos(theta)], axis=1)
@@ -97,8 +98,8 @@ def test_the_kernel_keeps_the_plane_and_raises_the_far_field():
     normals = (jnp.asarray(x), jnp.asarray(p))
     delta = jnp.asarray(5.0 * (x - p))
     capped = white_kernel(medium, sources, mus, **common)
-    a = np.asarray(capped.pair(delta, capped.sources(flux), normals))
-    b = np.asarray(corrected.pair(delta, corrected.sources(flux), normals))
+    a = np.asarray(kernel_pair(capped, delta, kernel_sources(capped, flux), normals))
+    b = np.asarray(kernel_pair(corrected, delta, kernel_sources(corrected, flux), normals))
     np.testing.assert_allclose(b[0], a[0], rtol=0.1)
     assert np.all(b[2] > 1.3 * a[2])
 

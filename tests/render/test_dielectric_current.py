@@ -27,6 +27,7 @@ from jaxsss.render.exit_current import (
     current_exit_distribution,
 )
 from tests.gradcheck import assert_grad_matches_fd
+from tests.render.kernel_calls import kernel_pair, kernel_sources
 from tests.render.test_exit_current import _mean_flow
 from tests.render.test_exit_curvature import sphere_pairs
 
@@ -116,8 +117,8 @@ def test_the_kernels_rows_and_both_signs(kernels):
     x, p, delta = sphere_pairs(rng, n)
     flux = jnp.asarray(rng.uniform(0.1, 1.0, size=(n, 4, k, 2)))
     normals = (jnp.asarray(x), jnp.asarray(p))
-    a = np.asarray(plain.pair(delta, plain.sources(flux), normals))
-    b = np.asarray(current.pair(delta, current.sources(flux), normals))
+    a = np.asarray(kernel_pair(plain, delta, kernel_sources(plain, flux), normals))
+    b = np.asarray(kernel_pair(current, delta, kernel_sources(current, flux), normals))
     assert b.shape == (n, 4 * k, 2) and current.rows_per_node == 4 and plain.rows_per_node == 1
     np.testing.assert_allclose(b[:, :k], a, rtol=1e-12)
     vec = b[:, k:].reshape(n, 3, k, 2)
@@ -125,10 +126,10 @@ def test_the_kernels_rows_and_both_signs(kernels):
     up = jnp.tile(jnp.array([[0.0, 0.0, 1.0]]), (2, 1))
     d = jnp.array([[3.0, 1.0, 0.0], [-3.0, -1.0, 0.0]])
     still = jnp.zeros((2, 4, k, 2)).at[:, 0].set(1.0)
-    pair = np.asarray(current.pair(d, current.sources(still), (up, up)))
+    pair = np.asarray(kernel_pair(current, d, kernel_sources(current, still), (up, up)))
     np.testing.assert_allclose(pair[0, k:] + pair[1, k:], 0.0, atol=1e-12 * np.abs(pair).max())
     weights = jnp.asarray(rng.uniform(-1.0, 1.0, size=(n, 4 * k, 2)))
-    parts = np.asarray(current.pair(delta, current.sources(flux), normals, weights))
+    parts = np.asarray(kernel_pair(current, delta, kernel_sources(current, flux), normals, weights))
     np.testing.assert_allclose(parts, np.asarray(row_parts(jnp.asarray(b), weights, k)), rtol=1e-10)
     np.testing.assert_array_equal(np.asarray(current.weighted_disc(3.0))[k:], 0.0)
     radiance, flow = jnp.array([[1.0, 1.0, 1.0]]), jnp.array([[0.3, -0.3, -2.0]])

@@ -15,6 +15,7 @@ from jaxsss.render.exit_current import (CURRENT_ALBEDO, CURRENT_D, CURRENT_D_EDG
                                         current_amplitude, current_amplitude_at, current_exit_distribution,
                                         fit_exit_current, load_exit_current_table, tangential_unit)
 from tests.gradcheck import assert_grad_matches_fd
+from tests.render.kernel_calls import kernel_pair, kernel_sources
 from tests.render.test_exit_curvature import sphere_pairs
 
 _amplitude = jax.jit(current_amplitude)
@@ -102,8 +103,8 @@ def test_the_current_rows_follow_the_flow_and_cancel_on_symmetric_pairs(kernels)
     x, p, delta = sphere_pairs(rng, n)
     flux = jnp.asarray(rng.uniform(0.1, 1.0, size=(n, 4, k, 2)))
     normals = (jnp.asarray(x), jnp.asarray(p))
-    a = np.asarray(curved.pair(delta, curved.sources(flux), normals))
-    b = np.asarray(current.pair(delta, current.sources(flux), normals))
+    a = np.asarray(kernel_pair(curved, delta, kernel_sources(curved, flux), normals))
+    b = np.asarray(kernel_pair(current, delta, kernel_sources(current, flux), normals))
     assert b.shape == (n, 5 * k, 2) and current.value_shape(flux.shape) == (5 * k, 2) and current.rows_per_node == 5
     np.testing.assert_allclose(b[:, :2 * k], a, rtol=1e-12)
     vec = b[:, 2 * k:].reshape(n, 3, k, 2)
@@ -113,13 +114,13 @@ def test_the_current_rows_follow_the_flow_and_cancel_on_symmetric_pairs(kernels)
     up = jnp.tile(jnp.array([[0.0, 0.0, 1.0]]), (2, 1))
     d = jnp.array([[3.0, 1.0, 0.0], [-3.0, -1.0, 0.0]])
     still = jnp.zeros((2, 4, k, 2)).at[:, 0].set(1.0)
-    pair = np.asarray(current.pair(d, current.sources(still), (up, up)))
+    pair = np.asarray(kernel_pair(current, d, kernel_sources(current, still), (up, up)))
     np.testing.assert_allclose(pair[0, 2 * k:] + pair[1, 2 * k:], 0.0, atol=1e-12 * np.abs(pair).max())
     assert np.all(pair[0, 2 * k:3 * k] > 0.0)  # along +x, away from the entry at -d
     # With exit weights: the exitance's rows and the current's as two radiances per pair (their sign is taken after
     # the sum), as row_parts gives them from the rows.
     weights = jnp.asarray(rng.uniform(-1.0, 1.0, size=(n, 5 * k, 2)))
-    parts = np.asarray(current.pair(delta, current.sources(flux), normals, weights))
+    parts = np.asarray(kernel_pair(current, delta, kernel_sources(current, flux), normals, weights))
     assert parts.shape == (n, 2, 2) and current.value_shape(flux.shape, True) == (2, 2)
     np.testing.assert_allclose(parts, np.asarray(row_parts(jnp.asarray(b), weights, 2 * k)), rtol=1e-10)
     np.testing.assert_allclose(parts.sum(axis=1), np.sum(b * np.asarray(weights), axis=1), rtol=1e-10)
@@ -155,12 +156,12 @@ def test_gradients_match_finite_differences(kernels):
     d = jnp.array([[2.0, 1.0, 0.3], [-4.0, 0.5, 1.0]])
     normals = (jnp.array([[0.0, 0.0, 1.0]] * 2), jnp.array([[0.0, 0.1, 0.995]] * 2))
     flux = jnp.ones((2, 4, k, 2)).at[:, 1:4].set(0.1)
-    sources = current.sources(flux)
+    sources = kernel_sources(current, flux)
 
     def f(p):
         a = current_amplitude_at(current_amplitude(p[:1]), p[1] * jnp.array([0.3, 2.2, 6.1])[:, None, None])
         y = current_exit_distribution(jnp.array([0.3, 0.8]), mus, p[2:3])
-        rows = current.pair(p[3] * d, sources, normals)
+        rows = kernel_pair(current, p[3] * d, sources, normals)
         return jnp.sum(a) + jnp.sum(y * jnp.arange(1.0, k + 1.0)[None, :, None]) + jnp.sum(rows[:, 2 * k:] ** 2)
 
     assert_grad_matches_fd(f, jnp.array([0.93, 1.1, 0.87, 1.3]), jit=True)

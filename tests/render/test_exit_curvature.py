@@ -14,6 +14,7 @@ from jaxsss.render.exit_curvature import (CURVED_ALBEDO, CURVED_D, CURVED_KAPPA,
                                           load_exit_curvature_table)
 from jaxsss.render.walk import pencil_beam_walk
 from tests.gradcheck import assert_grad_matches_fd
+from tests.render.kernel_calls import kernel_pair, kernel_sources
 
 # The table's functions jitted (one program each, kept by the persistent cache; the incidence nodes static): op by
 # op, the first test to call them compiled every primitive (9 s).
@@ -135,19 +136,19 @@ def test_curved_kernel_keeps_the_exitance_and_a_plane_keeps_its_exit():
     n = 9
     x, p, delta = sphere_pairs(rng, n)
     flux = jnp.asarray(rng.uniform(0.1, 1.0, size=(n, 4, 3, 2)))
-    sources_ = curved.sources(flux)
+    sources_ = kernel_sources(curved, flux)
     convex = (jnp.asarray(x), jnp.asarray(p))
-    a = np.asarray(flat.pair(delta, sources_, convex))
-    b = np.asarray(curved.pair(delta, sources_, convex))
+    a = np.asarray(kernel_pair(flat, delta, sources_, convex))
+    b = np.asarray(kernel_pair(curved, delta, sources_, convex))
     assert b.shape == (n, 6, 2) and curved.value_shape(flux.shape) == (6, 2)
     np.testing.assert_allclose(b[:, :3], a, rtol=1e-12)
     assert np.sum(b[:, 3:]) > 0.0
     up = jnp.tile(jnp.array([[0.0, 0.0, 1.0]]), (n, 1))
     plane_delta = delta.at[:, 2].set(0.0)
-    assert np.all(np.asarray(curved.pair(plane_delta, sources_, (up, up)))[:, 3:] == 0.0)
-    assert np.all(np.asarray(curved.pair(delta, sources_, (jnp.asarray(-x), jnp.asarray(-p))))[:, 3:] == 0.0)
+    assert np.all(np.asarray(kernel_pair(curved, plane_delta, sources_, (up, up)))[:, 3:] == 0.0)
+    assert np.all(np.asarray(kernel_pair(curved, delta, sources_, (jnp.asarray(-x), jnp.asarray(-p))))[:, 3:] == 0.0)
     weights = jnp.asarray(rng.uniform(0.0, 1.0, size=(n, 6, 2)))
-    np.testing.assert_allclose(np.asarray(curved.pair(delta, sources_, convex, weights)),
+    np.testing.assert_allclose(np.asarray(kernel_pair(curved, delta, sources_, convex, weights)),
                                np.sum(b * np.asarray(weights), axis=1), rtol=1e-12)
     area = jnp.asarray(rng.uniform(0.5, 1.0, size=n))
     point, w_flux, _ = curved.near_terms(delta, sources_, area, 5.0, convex)

@@ -10,6 +10,7 @@ from jaxsss.render.bssrdf import exit_distribution, white_kernel, white_tables
 from jaxsss.render.exit_distance import (SPLIT_ALBEDO, SPLIT_D, SPLIT_MU_EDGES, SPLIT_MUS, amplitude_at,
                                          distance_amplitude, exit_split_distribution, load_exit_distance_table)
 from tests.gradcheck import assert_grad_matches_fd
+from tests.render.kernel_calls import kernel_pair, kernel_sources
 
 
 def test_a_whole_half_space_leaves_by_chandrasekhar():
@@ -65,8 +66,8 @@ def test_split_kernel_keeps_the_exitance():
     rng = np.random.default_rng(0)
     delta = jnp.asarray(rng.normal(size=(9, 3)) * 6.0)
     flux = jnp.asarray(rng.uniform(0.1, 1.0, size=(9, 4, 3, 2)))
-    a = np.asarray(plain.pair(delta, plain.sources(flux)))
-    b = np.asarray(split.pair(delta, split.sources(flux)))
+    a = np.asarray(kernel_pair(plain, delta, kernel_sources(plain, flux)))
+    b = np.asarray(kernel_pair(split, delta, kernel_sources(split, flux)))
     assert b.shape == (9, 6, 2)
     np.testing.assert_allclose(b[:, :3], a, rtol=1e-12)
     wd, wd2 = np.asarray(plain.weighted_disc(3.0)), np.asarray(split.weighted_disc(3.0))
@@ -94,10 +95,10 @@ def test_weighted_pairs_are_the_nodes_exit():
     view = np.concatenate([rng.uniform(1.0, 20.0, size=(n, 1)), rng.normal(size=(n, 3)) * 0.3], axis=1)
     normals = (jnp.asarray(np.concatenate([normal, view], axis=1)), jnp.asarray(normal[::-1].copy()))
     weights = jnp.asarray(rng.uniform(0.0, 1.0, size=(n, 6, 2)))
-    sources_ = kernel.sources(flux)
-    nodes = np.asarray(kernel.pair(delta, sources_, normals))
+    sources_ = kernel_sources(kernel, flux)
+    nodes = np.asarray(kernel_pair(kernel, delta, sources_, normals))
     assert nodes.shape == (n, 6, 2) and kernel.value_shape(flux.shape, True) == (2,)
-    np.testing.assert_allclose(np.asarray(kernel.pair(delta, sources_, normals, weights)),
+    np.testing.assert_allclose(np.asarray(kernel_pair(kernel, delta, sources_, normals, weights)),
                                np.sum(nodes * np.asarray(weights), axis=1), rtol=1e-12)
     area = jnp.asarray(rng.uniform(0.5, 1.0, size=n))
     point, w_flux, w_area = kernel.near_terms(delta, sources_, area, 5.0, normals)

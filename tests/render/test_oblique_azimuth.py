@@ -14,6 +14,7 @@ from jaxsss.render.curvature_correction import CORRECTION_ALBEDO, CORRECTION_D, 
 from jaxsss.render.oblique_azimuth import (AZIMUTH_B_MAX, AZIMUTH_MUS, _tally, azimuth_factor, azimuth_rows,
                                            kernel_harmonic, load_oblique_azimuth)
 from tests.gradcheck import assert_grad_matches_fd
+from tests.render.kernel_calls import kernel_pair, kernel_sources
 
 MUS, SOURCES = white_tables(0.0, 1.0, True)
 
@@ -50,8 +51,8 @@ def test_the_corrected_kernel_has_a_fresh_walks_harmonic():
     means = []
     for azimuth in (False, True):
         kernel = _kernel(0.97, azimuth)
-        src = jnp.broadcast_to(kernel.sources(flux), (48,) + kernel.sources(flux).shape[1:])
-        means.append(float(np.mean(np.asarray(kernel.pair(pts, src, (up, up)))[:, MUS.index(0.5), 0])))
+        src = jnp.broadcast_to(kernel_sources(kernel, flux), (48,) + kernel_sources(kernel, flux).shape[1:])
+        means.append(float(np.mean(np.asarray(kernel_pair(kernel, pts, src, (up, up)))[:, MUS.index(0.5), 0])))
     assert means[1] == pytest.approx(means[0], rel=0.02)
 
 

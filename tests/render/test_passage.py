@@ -12,6 +12,7 @@ from jaxsss.render.passage import (PASSAGE_MUS, PASSAGE_TAU, PASSAGE_X, cut_beam
                                    passage_loss_table, truncated_travel, view_chords)
 from jaxsss.render.rays import SceneGeometry
 from tests.gradcheck import assert_grad_matches_fd
+from tests.render.kernel_calls import kernel_pair, kernel_sources
 
 RADIUS = 20.0
 
@@ -297,12 +298,12 @@ def test_view_cut_keeps_a_share_of_the_light():
     delta = jnp.asarray(np.concatenate([rng.normal(size=(3, 3)) * 8.0, [[1e-9, 0.0, 0.0]]]))
     # No finite entry chord (rows 4 and 5 zero): only the eye's cut acts.
     flux = jnp.asarray(np.concatenate([rng.uniform(0.2, 1.0, size=(4, 4, 3, 1)), np.zeros((4, 2, 3, 1))], axis=1))
-    src = kernel.sources(flux)
-    plain = np.asarray(kernel.pair(delta, src, _view_normals(1e9)))
-    three = np.asarray(kernel.pair(delta, src, (_view_normals(1e9)[0][:, :3], _view_normals(1e9)[1])))
+    src = kernel_sources(kernel, flux)
+    plain = np.asarray(kernel_pair(kernel, delta, src, _view_normals(1e9)))
+    three = np.asarray(kernel_pair(kernel, delta, src, (_view_normals(1e9)[0][:, :3], _view_normals(1e9)[1])))
     np.testing.assert_allclose(plain, three, rtol=1e-12)
-    short = np.asarray(kernel.pair(delta, src, _view_normals(3.0)))
-    longer = np.asarray(kernel.pair(delta, src, _view_normals(12.0)))
+    short = np.asarray(kernel_pair(kernel, delta, src, _view_normals(3.0)))
+    longer = np.asarray(kernel_pair(kernel, delta, src, _view_normals(12.0)))
     assert np.all(np.isfinite(short)) and np.all(short >= 0.0)
     assert np.all(short <= longer + 1e-15) and np.all(longer <= plain + 1e-15)
     assert np.any(short < 0.9 * plain)
@@ -314,7 +315,7 @@ def test_view_cut_gradient_matches_finite_differences():
 
     def f(p):
         kernel = _kernel_with_passage(p[0], p[1])
-        return jnp.sum(kernel.pair(delta, kernel.sources(flux), _view_normals(6.0)))
+        return jnp.sum(kernel_pair(kernel, delta, kernel_sources(kernel, flux), _view_normals(6.0)))
 
     assert_grad_matches_fd(f, jnp.array([0.015, 0.15]))
 
