@@ -24,7 +24,8 @@ run: $(STAMP)
 # (PYTHONDONTWRITEBYTECODE): each worker's collection took 13 s without it and 7 s with it, and every subprocess and
 # notebook kernel compiles jaxsss again.
 test: $(STAMP)
-	PYTHONDONTWRITEBYTECODE= PYTHONPYCACHEPREFIX=$(CURDIR)/$(VENV)/pycache $(PY) -m pytest -n 2 --dist loadscope --no-loadscope-reorder --max-worker-restart=0 -q tests
+	PYTHONDONTWRITEBYTECODE= PYTHONPYCACHEPREFIX=$(CURDIR)/$(VENV)/pycache \
+		$(PY) -m pytest -n 2 --dist loadscope --no-loadscope-reorder --max-worker-restart=0 -q tests
 
 bench: $(STAMP)
 	$(PY) -m benchmarks.run_all
