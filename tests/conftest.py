@@ -98,14 +98,15 @@ HEAVY_FIRST = (
 )
 
 
-@pytest.hookimpl(trylast=True)
-def pytest_sessionfinish(session, exitstatus):
-    """An xdist worker ends here, after its results went to the main process (xdist's own ``pytest_sessionfinish``
-    sends them, "workerfinished"; this hook runs after it), without the interpreter's teardown: pytest's last garbage
-    collection and the destruction of every compiled program, MLIR context and JIT-linked object the worker made take
-    10-12 s after a heavy module (py-spy, 2026-11-30), and the main process waits for them (xdist gives a worker 10 s
-    to exit, then kills it): the suite's last test ended 14 s before the run did. Standard streams are flushed first.
-    A plain ``pytest`` run (no workers) ends as usual."""
+@pytest.hookimpl(tryfirst=True)
+def pytest_unconfigure(config):
+    """An xdist worker ends here, without the interpreter's teardown. Its results and exit status went to the main
+    process at the end of its ``pytest_sessionfinish`` (xdist's hook wrapper sends "workerfinished" after every other
+    implementation; ending there lost it, and the main process reported "node down: Not properly terminated"). What
+    follows, pytest's last garbage collections and the destruction of every compiled program, MLIR context and
+    JIT-linked object the worker made, took 10-12 s after a heavy module (py-spy, 2026-11-30) while the main process
+    waited (xdist gives a worker 10 s to exit, then kills it): the suite's last test ended 14 s before the run did.
+    Standard streams are flushed first. A plain ``pytest`` run (no workers) ends as usual."""
     if os.environ.get("PYTEST_XDIST_WORKER") is None:
         return
     import sys
