@@ -27,7 +27,7 @@ from typing import NamedTuple
 import numpy as np
 
 from jaxsss.render.camera import camera_rays
-from jaxsss.render.rays import OBJECT_TRANSLUCENT, SceneGeometry
+from jaxsss.render.rays import OBJECT_TRANSLUCENT, SceneGeometry, scene_geometry
 
 __all__ = ["BAND_COS", "BIN", "COS_BINS", "LIT_FRACTION", "PixelGeometry", "compare_images", "error_by_cos",
            "error_map", "jaxsss_coverage", "pixel_geometry", "pixel_light_cosines"]
@@ -57,7 +57,7 @@ class PixelGeometry(NamedTuple):
 
 
 def _geometry(scene) -> SceneGeometry:
-    return SceneGeometry(scene.mesh, [o.mesh for o in scene.occluders])
+    return scene_geometry(scene.mesh, [o.mesh for o in scene.occluders])
 
 
 def jaxsss_coverage(scene, spp: int = 64, seed: int = 0, geometry=None) -> np.ndarray:

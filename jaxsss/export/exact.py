@@ -64,7 +64,7 @@ def _face_pixels(scene, margin: float) -> _Face:
     its edges (the bounding rectangle of the mesh's vertices on its plane: exact for the ``slab`` and ``box``
     built-ins, whose faces are rectangles)."""
     from jaxsss.render.camera import camera_rays
-    from jaxsss.render.rays import SceneGeometry
+    from jaxsss.render.rays import scene_geometry
 
     if not margin > 0.0:
         raise ValueError(f"margin={margin!r} is outside the allowed range (0, inf) mm")
@@ -72,7 +72,7 @@ def _face_pixels(scene, margin: float) -> _Face:
         _refuse("occluder", len(scene.occluders), "none")
     if scene.material.texture is not None:
         _refuse("material.texture", scene.material.texture_path, "none")
-    geometry = SceneGeometry(scene.mesh, [])
+    geometry = scene_geometry(scene.mesh, [])
     rays = camera_rays(dataclasses.replace(scene.camera, spp=1))
     hits = geometry.first_hit(rays.origins, rays.directions)
     h, w = rays.shape

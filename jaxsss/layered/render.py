@@ -39,7 +39,7 @@ from jaxsss.render.renderer import prepare as prepare_diffusion
 from jaxsss.render.camera import camera_rays
 from jaxsss.render.methods import Preparation, register_method, render
 from jaxsss.render.lights import refuse_lights
-from jaxsss.render.rays import OBJECT_TRANSLUCENT, SceneGeometry
+from jaxsss.render.rays import OBJECT_TRANSLUCENT, SceneGeometry, scene_geometry
 from jaxsss.render.scene import scene_with
 from jaxsss.render.shading import constant_image, face_the_eye
 
@@ -211,7 +211,7 @@ def prepare_layered(scene, spec: LayerSpec, *, resolution=None, samples: int | N
                   "along one direction per light (jaxsss.layered.lighting)")
     timings: dict[str, float] = {}
     t0 = time.perf_counter()
-    geometry = SceneGeometry(scene.mesh, [o.mesh for o in scene.occluders])
+    geometry = scene_geometry(scene.mesh, [o.mesh for o in scene.occluders])
     rays = camera_rays(scene.camera, resolution, seed=scene.render.seed)
     keep = np.ones(len(rays.pixel), bool) if pixel_mask is None else np.asarray(pixel_mask).reshape(-1)[rays.pixel]
     hits = geometry.first_hit(rays.origins, rays.directions)

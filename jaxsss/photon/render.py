@@ -45,7 +45,7 @@ from jaxsss.render.lights import DELTA_KINDS, refuse_lights
 from jaxsss.render.methods import Preparation, register_method
 from jaxsss.render.pairs import BLOCK_PAIRS, pair_blocks
 from jaxsss.render.plan import EPS_DEFAULT, PlanItem, make_plan
-from jaxsss.render.rays import SceneGeometry
+from jaxsss.render.rays import SceneGeometry, scene_geometry
 from jaxsss.render.mirror import ReflectingPoints, mirror_field
 from jaxsss.render.shading import point_shading, shaded_fields, shading_points
 
@@ -142,7 +142,7 @@ def photon_geometry(scene) -> tuple[SceneGeometry, tuple[int, ...]]:
     """The geometry photons are traced against (translucent mesh, occluders, blockers) and the blockers' ids."""
     meshes = [o.mesh for o in scene.occluders] + [b.mesh for b in scene.blockers]
     first = 1 + len(scene.occluders)
-    return SceneGeometry(scene.mesh, meshes), tuple(range(first, first + len(scene.blockers)))
+    return scene_geometry(scene.mesh, meshes), tuple(range(first, first + len(scene.blockers)))
 
 
 def trace_scene(scene, n_photons: int, *, walk: str | None = None, seed: int | None = None,
@@ -237,14 +237,14 @@ def prepare_photon(scene, *, n_photons: int | None = None, eps: float | None = N
     timings["octree"] = time.perf_counter() - t0
     t0 = time.perf_counter()
     if points is None:
-        geometry = SceneGeometry(scene.mesh, [o.mesh for o in scene.occluders])
+        geometry = scene_geometry(scene.mesh, [o.mesh for o in scene.occluders])
         shading = shading_points(scene, geometry, base_plan, resolution, pixel_mask, trace.sources.power.shape[1])
     else:
         shading = point_shading(points, trace.sources.power.shape[1], owner="prepare_photon")
         base_plan = base_plan._replace(single_scattering=False, specular=False)
     timings["camera_rays"] = time.perf_counter() - t0
     t0 = time.perf_counter()
-    blockers = SceneGeometry(scene.blockers[0].mesh, [b.mesh for b in scene.blockers[1:]]) if scene.blockers \
+    blockers = scene_geometry(scene.blockers[0].mesh, [b.mesh for b in scene.blockers[1:]]) if scene.blockers \
         else None
     pairs = pair_lists(stree, shading.pos, shading.normal, eps, blockers=blockers, progress=progress)
     timings["interactions"] = time.perf_counter() - t0

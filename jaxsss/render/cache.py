@@ -68,7 +68,7 @@ from jaxsss.render.methods import Preparation, register_method, resolve_method
 from jaxsss.render.pairs import pair_info, pair_lists
 from jaxsss.render.plan import PlanItem, make_plan
 from jaxsss.render.radiance import F_dt_external, diffuse_albedo
-from jaxsss.render.rays import OBJECT_TRANSLUCENT, SceneGeometry
+from jaxsss.render.rays import OBJECT_TRANSLUCENT, scene_geometry
 from jaxsss.render.renderer import assemble_prepared, irradiance_pass
 from jaxsss.render.shading import shading_points
 
@@ -448,7 +448,7 @@ def _shaded_point_count(scene, resolution, pixel_mask) -> int:
     """How many camera rays hit the translucent object (the plan's measure of what caching can save)."""
     rays = camera_rays(scene.camera, resolution, seed=scene.render.seed)
     keep = slice(None) if pixel_mask is None else np.asarray(pixel_mask).reshape(-1)[rays.pixel]
-    hits = SceneGeometry(scene.mesh, [o.mesh for o in scene.occluders]).first_hit(rays.origins[keep],
+    hits = scene_geometry(scene.mesh, [o.mesh for o in scene.occluders]).first_hit(rays.origins[keep],
                                                                                     rays.directions[keep])
     return int(np.count_nonzero(hits.obj == OBJECT_TRANSLUCENT))
 

@@ -52,9 +52,9 @@ def mirror_field(scene, shading, geometry=None):
             light.kind in EXTENDED_KINDS for light in scene.lights):
         return None
     if geometry is None:
-        from jaxsss.render.rays import SceneGeometry
+        from jaxsss.render.rays import scene_geometry
 
-        geometry = SceneGeometry(scene.mesh, [o.mesh for o in scene.occluders])
+        geometry = scene_geometry(scene.mesh, [o.mesh for o in scene.occluders])
     return to_device(mirror_radiance(scene.lights, shading.pos, shading.normal, shading.to_eye, geometry))
 
 

@@ -33,7 +33,7 @@ from jaxsss.render.methods import Preparation, register_method
 from jaxsss.render.octree import build_octree
 from jaxsss.render.pairs import BLOCK_PAIRS, PairLists, near_radius, pair_info, pair_lists
 from jaxsss.render.plan import ScenePlan, make_plan
-from jaxsss.render.rays import SceneGeometry
+from jaxsss.render.rays import scene_geometry
 from jaxsss.render.mirror import ReflectingPoints, mirror_field
 from jaxsss.render.samples import irradiance_samples
 from jaxsss.render.shading import ShadingPoints, point_shading, shaded_fields, shading_points
@@ -315,7 +315,7 @@ class Prepared(ReflectingPoints):
 def irradiance_pass(scene, plan: ScenePlan):
     """``(geometry, samples, tree, octree_seconds)``: the ray-casting scene, pass-1 irradiance samples and their
     octree (centroids weighted by the channel-mean direct plus indirect flux)."""
-    geometry = SceneGeometry(scene.mesh, [o.mesh for o in scene.occluders])
+    geometry = scene_geometry(scene.mesh, [o.mesh for o in scene.occluders])
     samples = irradiance_samples(scene, geometry, plan.n_samples, shadows=plan.shadows, indirect=plan.indirect,
                                  seed=scene.render.seed, chords=plan.bssrdf != "dipole", self_bounce=plan.self_bounce)
     t0 = time.perf_counter()
@@ -369,7 +369,7 @@ def assemble_prepared(scene, plan: ScenePlan, samples, tree, shading: ShadingPoi
                                                  float(medium.eta)))
             view = None
             if mirror:  # camera rays (not the validation's free points, nor the cached method's cache points)
-                geometry = geometry or SceneGeometry(scene.mesh, [o.mesh for o in scene.occluders])
+                geometry = geometry or scene_geometry(scene.mesh, [o.mesh for o in scene.occluders])
                 view = view_chords(geometry, shading, float(medium.eta))
             passage_cut = samples.chord is not None and cut_matters(medium, samples, view)
             view_chord = to_device(view) if passage_cut and view is not None else None
