@@ -7,13 +7,14 @@ whole when x lies outside v's cell and its solid-angle estimate is small (Eq. 12
 
 otherwise it is opened and its children are tested; samples are accepted whenever they are reached. The accepted
 entities of one query form a cut of the tree: their sample ranges partition the samples (or, with ``r_cut``, those
-that may lie within ``r_cut``). The cut depends only on geometry, so it is computed once here, in NumPy, as a flat
+that may lie within ``r_cut``). The cut depends only on geometry, so it is computed once here (Numba), as a flat
 list of (query, entity) pairs sorted by query; the material-dependent radiant exitance is then a JAX segment sum of
 ``Phi_v * R_d(|x - P_v|)`` over the pairs.
 """
 
 from __future__ import annotations
 
+import functools
 import os
 from concurrent.futures import ThreadPoolExecutor
 from typing import NamedTuple
@@ -26,7 +27,6 @@ from jaxsss.render.octree import MORTON_BITS, Octree
 __all__ = ["Interactions", "build_interactions", "direct_interactions"]
 
 MAX_DIRECT_PAIRS = 50_000_000
-_MAX_FRONTIER = 1 << 17  # (query, node) pairs processed per traversal step; bounds temporary memory
 _INT32_MAX = np.iinfo(np.int32).max
 
 
@@ -84,17 +84,8 @@ def _check_positive(value, name: str, allow_none: bool) -> float | None:
     return v
 
 
-def _expand(q: np.ndarray, first: np.ndarray, count: np.ndarray):
-    """Pairs ``(q[j], first[j] + i)`` for ``i < count[j]``, in order."""
-    total = int(count.sum())
-    q_new = np.repeat(q, count)
-    ends = np.cumsum(count)
-    offset = np.arange(total, dtype=np.int64) - np.repeat(ends - count, count)
-    return q_new, np.repeat(first, count) + offset
-
-
 class _Tables(NamedTuple):
-    """Per-internal-node arrays (indexed by ``entity - N``), packed for fast gathers."""
+    """Per-internal-node arrays (indexed by ``entity - N``), packed for the traversal."""
 
     n: int
     area: np.ndarray
@@ -108,7 +99,7 @@ class _Tables(NamedTuple):
     is_leaf: np.ndarray
     samples: np.ndarray
     tol: float
-    entity_bits: int
+    stack: int
 
 
 def _tables(octree: Octree) -> _Tables:
@@ -126,76 +117,101 @@ def _tables(octree: Octree) -> _Tables:
         centroid=np.ascontiguousarray(octree.centroid[n:]),
         lo=np.ascontiguousarray(octree.lo[n:]),
         hi=np.ascontiguousarray(octree.hi[n:]),
-        shift=3 * (MORTON_BITS - octree.level[n:]),
-        cell_code=octree.cell_codes()[n:],
+        shift=np.ascontiguousarray(3 * (MORTON_BITS - octree.level[n:]), dtype=np.int64),
+        cell_code=np.ascontiguousarray(octree.cell_codes()[n:], dtype=np.int64),
         first_child=first.astype(np.int64),
         n_child=n_child.astype(np.int64),
         is_leaf=octree.is_leaf_node[n:].copy(),
         samples=np.ascontiguousarray(octree.centroid[:n]),
         tol=1e-9 * octree.side,  # rounding margin of the cell boxes for the r_cut test
-        entity_bits=max(1, (octree.n_entities - 1).bit_length()),
+        # Depth-first, a node's unvisited siblings wait on the stack: at most 7 per level below the root, plus 8.
+        stack=8 * (int(octree.depth[n:].max()) + 2),
     )
 
 
-def _traverse_chunk(t: _Tables, x: np.ndarray, eps: float, r_cut: float | None, code: np.ndarray):
-    """Accepted pairs for the queries ``x`` of one chunk, as sorted keys ``(local query << entity_bits) | entity``.
+@functools.cache
+def _compiled_traversal():
+    """The traversal of one chunk of queries, compiled by Numba (cached on disk; released GIL, so threads share the
+    chunks). Depth-first per query: its samples come out in increasing id (children are visited in Morton order),
+    its accepted nodes are sorted apart and follow them (every node id exceeds every sample id)."""
+    import numba
 
-    ``code`` holds the queries' Morton codes (``-1`` outside the cube). The frontier of (query, node) pairs is a
-    stack of arrays of at most ``_MAX_FRONTIER`` pairs, which bounds the temporaries whatever the chunk size.
-    """
-    n = t.n
-    out_q, out_e = [], []
-    stack = [(np.arange(x.shape[0], dtype=np.int64), np.zeros(x.shape[0], dtype=np.int64))]  # node index = e - N
-    r2 = None if r_cut is None else (r_cut + t.tol) ** 2
-    while stack:
-        q, v = stack.pop()
-        if q.size > _MAX_FRONTIER:
-            stack.extend((q[i : i + _MAX_FRONTIER], v[i : i + _MAX_FRONTIER]) for i in range(0, q.size, _MAX_FRONTIER))
-            continue
-        xq = x[q]
-        if r2 is not None:
-            # Drop nodes whose cell lies entirely beyond r_cut of the query.
-            gap = np.maximum(np.maximum(t.lo[v] - xq, xq - t.hi[v]), 0.0)
-            near = np.einsum("ij,ij->i", gap, gap) <= r2
-            q, v, xq = q[near], v[near], xq[near]
-        # Eq. 12: accept v when A_v / |x - P_v|^2 < eps and x is outside v's cell (same cell code at v's level).
-        d = xq - t.centroid[v]
-        cand = np.flatnonzero(t.area[v] < eps * np.einsum("ij,ij->i", d, d))
-        vc = v[cand]
-        inside = (code[q[cand]] >> t.shift[vc]) == t.cell_code[vc]
-        accept = np.zeros(q.size, dtype=bool)
-        accept[cand[~inside]] = True
-        out_q.append(q[accept].astype(np.int32))
-        out_e.append((v[accept] + n).astype(np.int32))
-        # Open the rest: leaf nodes hand over their samples (always accepted), others push their child nodes.
-        keep = ~accept
-        q, v = q[keep], v[keep]
-        leaf = t.is_leaf[v]
-        qs, es = _expand(q[leaf], t.first_child[v[leaf]], t.n_child[v[leaf]])
-        if r_cut is not None:
-            d = x[qs] - t.samples[es]
-            near = np.einsum("ij,ij->i", d, d) <= r_cut**2
-            qs, es = qs[near], es[near]
-        out_q.append(qs.astype(np.int32))
-        out_e.append(es.astype(np.int32))
-        inner = ~leaf
-        if inner.any():
-            qn, en = _expand(q[inner], t.first_child[v[inner]], t.n_child[v[inner]])
-            stack.append((qn, en - n))
-    # Sort by (query, entity) through one integer key per pair, filled part by part (no concatenated copies);
-    # int32 keys (twice as fast to sort) when the local query and entity bits fit in 31 bits.
-    shift = t.entity_bits
-    dtype = np.int32 if (x.shape[0] - 1).bit_length() + shift <= 31 else np.int64
-    key = np.empty(sum(a.size for a in out_q), dtype=dtype)
-    pos = 0
-    for qa, ea in zip(out_q, out_e, strict=True):
-        part = key[pos : pos + qa.size]
-        part[...] = qa
-        part <<= shift
-        part |= ea
-        pos += qa.size
-    key.sort()
-    return key
+    @numba.njit(cache=True, nogil=True)
+    def traverse(area, centroid, lo, hi, shift, cell_code, first_child, n_child, is_leaf, samples, n, x, code, eps,
+                 r2_cell, r2_sample, stack_size):
+        n_q = x.shape[0]
+        cap = max(1024, 64 * n_q)
+        query = np.empty(cap, np.int32)
+        entity = np.empty(cap, np.int32)
+        nodes = np.empty(1024, np.int64)
+        stack = np.empty(stack_size, np.int64)
+        m = 0
+        for iq in range(n_q):
+            x0, x1, x2 = x[iq, 0], x[iq, 1], x[iq, 2]
+            n_nodes = 0
+            stack[0] = 0
+            sp = 1
+            while sp > 0:
+                sp -= 1
+                v = stack[sp]
+                if r2_cell >= 0.0:
+                    # Drop a node whose cell lies entirely beyond r_cut of the query.
+                    g2 = 0.0
+                    for k, xk in enumerate((x0, x1, x2)):
+                        g = max(lo[v, k] - xk, xk - hi[v, k], 0.0)
+                        g2 += g * g
+                    if g2 > r2_cell:
+                        continue
+                # Eq. 12: accept v when A_v / |x - P_v|^2 < eps and x is outside v's cell (same code at v's level).
+                d0, d1, d2 = x0 - centroid[v, 0], x1 - centroid[v, 1], x2 - centroid[v, 2]
+                if area[v] < eps * (d0 * d0 + d1 * d1 + d2 * d2) and (code[iq] >> shift[v]) != cell_code[v]:
+                    if n_nodes == nodes.shape[0]:
+                        nodes = np.concatenate((nodes, np.empty_like(nodes)))
+                    nodes[n_nodes] = v + n
+                    n_nodes += 1
+                    continue
+                c0, nc = first_child[v], n_child[v]
+                if is_leaf[v]:
+                    # A leaf hands over its samples (always accepted, but beyond r_cut).
+                    if m + nc > cap:
+                        cap *= 2
+                        query = np.concatenate((query, np.empty(cap - query.shape[0], np.int32)))
+                        entity = np.concatenate((entity, np.empty(cap - entity.shape[0], np.int32)))
+                    for e in range(c0, c0 + nc):
+                        if r2_sample >= 0.0:
+                            s0, s1, s2 = x0 - samples[e, 0], x1 - samples[e, 1], x2 - samples[e, 2]
+                            if s0 * s0 + s1 * s1 + s2 * s2 > r2_sample:
+                                continue
+                        query[m] = iq
+                        entity[m] = e
+                        m += 1
+                else:
+                    # Children pushed last first, so that they are visited in order (Morton, then rank).
+                    for c in range(nc - 1, -1, -1):
+                        stack[sp] = c0 + c - n
+                        sp += 1
+            if m + n_nodes > cap:
+                cap = 2 * (m + n_nodes)
+                query = np.concatenate((query, np.empty(cap - query.shape[0], np.int32)))
+                entity = np.concatenate((entity, np.empty(cap - entity.shape[0], np.int32)))
+            accepted = np.sort(nodes[:n_nodes])
+            for j in range(n_nodes):
+                query[m] = iq
+                entity[m] = accepted[j]
+                m += 1
+        return query[:m].copy(), entity[:m].copy()
+
+    return traverse
+
+
+def _traverse_chunk(t: _Tables, x: np.ndarray, eps: float, r_cut: float | None, code: np.ndarray):
+    """Accepted pairs ``(local query, entity)`` (int32 each) for the queries ``x`` of one chunk, sorted by query then
+    entity. ``code`` holds the queries' Morton codes (``-1`` outside the cube)."""
+    r2_cell = -1.0 if r_cut is None else (r_cut + t.tol) ** 2
+    r2_sample = -1.0 if r_cut is None else r_cut**2
+    return _compiled_traversal()(t.area, t.centroid, t.lo, t.hi, t.shift, t.cell_code, t.first_child, t.n_child,
+                                 t.is_leaf, t.samples, t.n, np.ascontiguousarray(x), np.ascontiguousarray(code),
+                                 float(eps), r2_cell, r2_sample, t.stack)
 
 
 _MIN_CHUNK = 256
@@ -233,9 +249,9 @@ def build_interactions(
         r_cut: optional cut-off radius in mm, in ``(0, inf)``. A node is dropped when its cell box is farther than
             ``r_cut`` from the query, a sample when it is; every sample within ``r_cut`` stays covered exactly once
             (accepted nodes may also cover samples beyond ``r_cut``).
-        chunk_size: queries traversed together (vectorised); the traversal's temporaries are bounded separately.
+        chunk_size: queries per call of the compiled traversal (a thread takes one chunk at a time).
         progress: show a tqdm bar over chunks.
-        n_threads: worker threads over chunks (NumPy releases the GIL in the heavy steps); default: the usable
+        n_threads: worker threads over chunks (the compiled traversal releases the GIL); default: the usable
             cores. The result does not depend on it.
 
     Returns:
@@ -262,13 +278,9 @@ def build_interactions(
 
     def run(q0: int):
         sl = slice(q0, q0 + chunk_size)
-        key = _traverse_chunk(t, x[sl], eps, r_cut, code[sl])
+        query, entity = _traverse_chunk(t, x[sl], eps, r_cut, code[sl])
         # Chunks come in query order, so concatenating the sorted chunks sorts the whole list.
-        query = np.empty(key.size, dtype=np.int32)
-        entity = np.empty(key.size, dtype=np.int32)
-        np.right_shift(key, t.entity_bits, out=query, casting="unsafe")  # < chunk_size: fits
         query += q0
-        np.bitwise_and(key, (1 << t.entity_bits) - 1, out=entity, casting="unsafe")  # < 2**31: fits
         return query, entity
 
     starts = range(0, n_q, chunk_size)

@@ -10,6 +10,7 @@ summarises a :class:`PairLists` for the render report. The hierarchical, cached 
 
 from __future__ import annotations
 
+import functools
 import math
 from typing import Any, NamedTuple
 
@@ -60,26 +61,51 @@ def pair_blocks(values: np.ndarray, fill: int, block: int) -> np.ndarray:
     return np.concatenate([values, np.full(pad, fill, dtype=values.dtype)]).reshape(n_blocks, k)
 
 
-def split_near(inter, q_pos, tree, rho0, chunk: int = 1 << 22):
+@functools.cache
+def _compiled_split():
+    """:func:`split_near`'s loop, compiled by Numba (cached on disk): one pass over the pairs, no temporaries."""
+    import numba
+
+    @numba.njit(cache=True, nogil=True)
+    def split(query, entity, centroid, q_pos, n, r2):
+        k = query.shape[0]
+        far = np.empty(k, np.bool_)
+        n_far = 0
+        nodes_inside = 0
+        for i in range(k):
+            e, q = entity[i], query[i]
+            d0, d1, d2 = centroid[e, 0] - q_pos[q, 0], centroid[e, 1] - q_pos[q, 1], centroid[e, 2] - q_pos[q, 2]
+            close = d0 * d0 + d1 * d1 + d2 * d2 < r2
+            far[i] = not (close and e < n)
+            n_far += far[i]
+            nodes_inside += close and e >= n
+        far_q, far_e = np.empty(n_far, np.int32), np.empty(n_far, np.int32)
+        near_q, near_s = np.empty(k - n_far, np.int32), np.empty(k - n_far, np.int32)
+        j = m = 0
+        for i in range(k):
+            if far[i]:
+                far_q[j], far_e[j] = query[i], entity[i]
+                j += 1
+            else:
+                near_q[m], near_s[m] = query[i], entity[i]
+                m += 1
+        return far_q, far_e, near_q, near_s, nodes_inside
+
+    return split
+
+
+def split_near(inter, q_pos, tree, rho0):
     """Split an interaction list into far pairs (summed point by point) and near (query, sample) pairs closer than
-    ``rho0`` (the near list's radius: the near-field radius plus any shift of the kernel). Returns ``(far_mask,
-    near_query, near_sample, nodes_inside)`` where ``nodes_inside``
-    counts accepted octree nodes whose centroid lies within ``rho0`` (0 unless eps is very large: a node there
-    subtends a solid angle far above any sensible eps)."""
-    n = tree.n_samples
-    far = np.ones(len(inter.query), dtype=bool)
-    nodes_inside = 0
-    for s in range(0, len(far), chunk):
-        q, e = inter.query[s:s + chunk], inter.entity[s:s + chunk]
-        # The tree's centroids begin with the sorted sample positions: one gather serves samples and nodes.
-        delta = tree.centroid[e] - q_pos[q]
-        close = np.einsum("ij,ij->i", delta, delta) < rho0 * rho0
-        sample = e < n
-        far[s:s + chunk] = ~(close & sample)
-        nodes_inside += int(np.count_nonzero(close & ~sample))
-    near_q = inter.query[~far].astype(np.int32)
-    near_s = inter.entity[~far].astype(np.int32)
-    return far, near_q, near_s, nodes_inside
+    ``rho0`` (the near list's radius: the near-field radius plus any shift of the kernel). Returns ``(far_query,
+    far_entity, near_query, near_sample, nodes_inside)`` (int32 index arrays in the list's order) where
+    ``nodes_inside`` counts accepted octree nodes whose centroid lies within ``rho0`` (0 unless eps is very large: a
+    node there subtends a solid angle far above any sensible eps). The tree's centroids begin with the sorted sample
+    positions, so one gather serves samples and nodes."""
+    far_q, far_e, near_q, near_s, nodes_inside = _compiled_split()(
+        np.ascontiguousarray(inter.query, dtype=np.int32), np.ascontiguousarray(inter.entity, dtype=np.int32),
+        np.ascontiguousarray(tree.centroid, dtype=np.float64), np.ascontiguousarray(q_pos, dtype=np.float64),
+        int(tree.n_samples), float(rho0) ** 2)
+    return far_q, far_e, near_q, near_s, int(nodes_inside)
 
 
 def near_radius(samples) -> float:
@@ -97,9 +123,9 @@ def pair_lists(tree, samples, q_pos, plan, *, progress: bool = False, block_pair
     if plan.method == "direct" or len(q_pos) == 0:
         return PairLists(None, None, None, None, rho0, np.full(len(q_pos), samples.n), 0)
     inter = build_interactions(tree, q_pos, plan.eps, r_cut=plan.r_cut, progress=progress)
-    far, near_q, near_s, nodes_inside = split_near(inter, q_pos, tree, rho0 + near_margin)
-    pq = to_device(pair_blocks(inter.query[far].astype(np.int32), len(q_pos), block_pairs))
-    pe = to_device(pair_blocks(inter.entity[far].astype(np.int32), 0, block_pairs))
+    far_q, far_e, near_q, near_s, nodes_inside = split_near(inter, q_pos, tree, rho0 + near_margin)
+    pq = to_device(pair_blocks(far_q, len(q_pos), block_pairs))
+    pe = to_device(pair_blocks(far_e, 0, block_pairs))
     return PairLists(pq, pe, near_q, near_s, rho0, inter.counts(), nodes_inside)
 
 

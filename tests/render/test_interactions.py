@@ -11,7 +11,7 @@ from jaxsss.render.interactions import (
     build_interactions,
     direct_interactions,
 )
-from jaxsss.render.octree import build_octree
+from jaxsss.render.octree import MORTON_BITS, build_octree
 
 
 def _sphere(n, rng, radius=5.0):
@@ -183,22 +183,40 @@ def test_few_queries_are_split_over_the_threads(scene, monkeypatch):
     np.testing.assert_array_equal(other.entity, ref.entity)
 
 
-def test_frontier_splitting_and_wide_keys_match(scene, monkeypatch):
-    """Splitting the frontier (bounded temporaries) and int64 sort keys do not change the result."""
-    import jaxsss.render.interactions as mod
+def _cut_by_recursion(tree, x, eps):
+    """The cut of Eq. 12 for one query, written as the paper states it: recursion from the root (slow, obvious)."""
+    n = tree.n_samples
+    code = int(tree.point_codes(x[None])[0])
+    out = []
 
-    tree, x = scene
-    ref = build_interactions(tree, x, 0.01)
-    with monkeypatch.context() as m:
-        m.setattr(mod, "_MAX_FRONTIER", 7)
-        other = build_interactions(tree, x, 0.01)
-    np.testing.assert_array_equal(other.query, ref.query)
-    np.testing.assert_array_equal(other.entity, ref.entity)
-    tables = mod._tables
-    monkeypatch.setattr(mod, "_tables", lambda octree: tables(octree)._replace(entity_bits=30))
-    other = build_interactions(tree, x, 0.01, chunk_size=50)  # 6 + 30 bits: int64 keys
-    np.testing.assert_array_equal(other.query, ref.query)
-    np.testing.assert_array_equal(other.entity, ref.entity)
+    def visit(v):
+        d = x - tree.centroid[v]
+        if tree.area[v] < eps * d @ d and (code >> (3 * (MORTON_BITS - int(tree.level[v])))) != tree.cell_codes()[v]:
+            out.append(v)
+        elif tree.is_leaf_node[v]:
+            out.extend(int(c) for c in tree.children[v] if c >= 0)
+        else:
+            for c in tree.children[v]:
+                if c >= 0:
+                    visit(int(c))
+
+    visit(n)
+    return sorted(out)
+
+
+def test_the_compiled_traversal_is_the_recursive_cut():
+    """Each query's list is the cut found by recursion from the root, sorted, on a deep tree: samples at halving
+    distances (a level each, down to the Morton resolution) and a clump of coincident samples (split by rank)."""
+    rng = np.random.default_rng(3)
+    halving = np.array([[5.0 * 2.0**-k, 0.1, 0.2] for k in range(40)])
+    p = np.concatenate([_sphere(800, rng), halving, np.tile([[1.0, 2.0, 4.0]], (3000, 1))])
+    tree = build_octree(p, rng.uniform(0.5, 1.5, len(p)) * 0.05, rng.uniform(0, 1, len(p)))
+    assert tree.depth.max() > 10
+    x = np.concatenate([_sphere(12, rng), [[1.0, 2.0, 4.0], [0.0, 0.1, 0.2], [30.0, 0.0, 0.0]]])
+    for eps in (0.01, 0.3):
+        inter = build_interactions(tree, x, eps)
+        for i in range(len(x)):
+            assert inter.entity[inter.query == i].tolist() == _cut_by_recursion(tree, x[i], eps)
 
 
 def test_small_tree_and_no_queries():
