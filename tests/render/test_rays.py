@@ -109,3 +109,41 @@ def test_scene_geometry_is_kept_by_content(monkeypatch):
         scene_geometry(trimesh.creation.icosphere(subdivisions=1, radius=3.0 + k))
     assert scene_geometry(a) is not first  # evicted, least recently used first
     assert len(rays._GEOMETRIES) == rays.GEOMETRY_CACHE_SIZE
+
+
+def _two_spheres():
+    a = trimesh.creation.icosphere(subdivisions=3, radius=1.0)
+    b = a.copy()
+    b.apply_translation([5.0, 0.0, 0.0])
+    return trimesh.util.concatenate([a, b])
+
+
+def _sphere_faces(edit):
+    sphere = trimesh.creation.icosphere(subdivisions=3)
+    return trimesh.Trimesh(sphere.vertices, edit(sphere.faces), process=False)
+
+
+@pytest.mark.parametrize(("make", "convex"), [
+    (lambda: trimesh.creation.icosphere(subdivisions=3, radius=4.0), True),
+    (lambda: trimesh.creation.box(extents=(1.0, 2.0, 3.0)), True),
+    (_two_spheres, False),  # convex at every edge, in two pieces
+    (lambda: trimesh.creation.torus(5.0, 1.0), False),
+    (lambda: _sphere_faces(lambda f: f[:-10]), False),  # open
+    (lambda: _sphere_faces(lambda f: f[:, ::-1]), False),  # inside out
+], ids=["sphere", "box", "two-spheres", "torus", "open", "inside-out"])
+def test_a_lone_convex_mesh_is_told_apart(make, convex):
+    """``convex_alone``: one closed convex piece and no occluders (what lets a light's path stop at its exit)."""
+    mesh = make()
+    assert SceneGeometry(mesh).convex_alone is convex
+    assert SceneGeometry(mesh, [trimesh.creation.box(extents=(0.1, 0.1, 0.1))]).convex_alone is False
+
+
+def test_large_batches_are_cast_in_chunks_over_threads(monkeypatch):
+    """Chunks smaller than the batch (spread over the cores) give the same hits as one call."""
+    mesh = trimesh.creation.icosphere(subdivisions=3, radius=8.0)
+    origins, directions = _rays(5000, 6.0, seed=2)
+    whole = SceneGeometry(mesh).first_hit(origins, directions)
+    monkeypatch.setattr(rays, "RAY_CHUNK", 333)
+    chunked = SceneGeometry(mesh).first_hit(origins, directions)
+    for a, b in zip(whole, chunked, strict=True):
+        np.testing.assert_array_equal(a, b)
