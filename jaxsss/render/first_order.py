@@ -95,32 +95,38 @@ def _inside_length(geometry, points: np.ndarray, to_light: np.ndarray, dist: np.
     from jaxsss.render.rays import OBJECT_TRANSLUCENT
 
     n = len(points)
-    limit = np.full(n, np.inf) if dist is None else np.asarray(dist, dtype=np.float64)
     total = np.zeros(n)
     open_ = np.ones(n, dtype=bool)
-    origin = points.copy()
-    travelled = np.zeros(n)
+    # The paths still followed (their ids, origins, directions, limits and lengths so far), compacted at each crossing.
     active = np.arange(n)
+    origin = np.asarray(points, dtype=np.float64)
+    direction = np.asarray(to_light, dtype=np.float64)
+    limit = np.full(n, np.inf) if dist is None else np.asarray(dist, dtype=np.float64)
+    travelled = np.zeros(n)
     inside = True
     for _ in range(2 * _REENTRIES + 1):
         if not len(active):
             break
-        hits = geometry.first_hit(origin[active], to_light[active])
+        hits = geometry.first_hit(origin, direction)
         t = np.where(hits.hit, hits.t, np.inf)
-        beyond = travelled[active] + t >= limit[active]
+        beyond = travelled + t >= limit
         if inside:
             # Inside, the path ends at the mesh (or the light, inside the object: the whole way counts).
-            total[active] += np.minimum(t, limit[active] - travelled[active])
+            total[active] += np.minimum(t, limit - travelled)
             stray = ~hits.hit | ((hits.obj != OBJECT_TRANSLUCENT) & ~beyond)
             open_[active[stray]] = False  # a hole in the mesh, or an occluder inside it
         else:
             blocked = hits.hit & ~beyond & (hits.obj != OBJECT_TRANSLUCENT)
             open_[active[blocked]] = False
+        if inside and geometry.convex_alone:
+            # Out of a lone convex mesh nothing is met again: the rest of the way is open.
+            active = active[:0]
+            break
         go_on = hits.hit & ~beyond & (hits.obj == OBJECT_TRANSLUCENT) & open_[active]
-        step = np.where(go_on, t + geometry.offset, 0.0)
-        travelled[active] += step
-        origin[active] += step[:, None] * to_light[active]
-        active = active[go_on]
+        step = t[go_on] + geometry.offset
+        active, direction, limit = active[go_on], direction[go_on], limit[go_on]
+        travelled = travelled[go_on] + step
+        origin = origin[go_on] + step[:, None] * direction
         inside = not inside
     open_[active] = False  # still crossing after the last followed re-entry
     return total, open_

@@ -234,3 +234,40 @@ def test_diffuse_light_keeps_its_first_orders_share():
     assert np.all(r[1:] > 1.0) and np.all(np.diff(r[1:]) < 0.0) and r[1] > 20.0
     assert np.asarray(diffuse_first_order_restore(0.5)).shape == (1,)
     assert_grad_matches_fd(lambda x: jnp.sum(diffuse_first_order_restore(x)), jnp.array([0.3, 0.8, 0.95]), rtol=1e-5)
+
+
+def test_a_lights_path_is_followed_through_every_crossing():
+    """The length inside towards the light: on a sphere, the chord to its surface (the march stops at the exit of a
+    lone convex mesh, and following it on gives the same); through a second sphere of the same mesh, both chords;
+    behind an occluder, closed."""
+    from jaxsss.render.first_order import _inside_length
+
+    sphere = trimesh.creation.icosphere(subdivisions=5, radius=1.0)
+    points = np.array([[0.0, 0.0, 0.0], [0.5, 0.0, 0.0], [-0.3, 0.2, 0.1]])
+    to_light = np.array([[1.0, 0.0, 0.0]] * 3)
+    # The chord from each point to the unit sphere along +x (the tessellation's inscribed sphere within 1e-3).
+    chord = -points[:, 0] + np.sqrt(1.0 - points[:, 1] ** 2 - points[:, 2] ** 2)
+    lone = SceneGeometry(sphere)
+    followed = SceneGeometry(sphere)
+    followed.__dict__["convex_alone"] = False  # follow every crossing all the same
+    assert lone.convex_alone
+    for geometry in (lone, followed):
+        length, open_ = _inside_length(geometry, points, to_light, None)
+        np.testing.assert_allclose(length, chord, rtol=2e-3)
+        assert open_.all()
+    np.testing.assert_array_equal(_inside_length(lone, points, to_light, None)[0],
+                                  _inside_length(followed, points, to_light, None)[0])
+    second = sphere.copy()
+    second.apply_translation([5.0, 0.0, 0.0])
+    pair = SceneGeometry(trimesh.util.concatenate([sphere, second]))
+    assert not pair.convex_alone
+    length, open_ = _inside_length(pair, points, to_light, None)
+    np.testing.assert_allclose(length, chord + 2.0 * np.sqrt(1.0 - points[:, 1] ** 2 - points[:, 2] ** 2), rtol=2e-3)
+    assert open_.all()
+    # A point light between the spheres: the second sphere's chord does not count.
+    length, _ = _inside_length(pair, points, to_light, 2.5 - points[:, 0])
+    np.testing.assert_allclose(length, chord, rtol=2e-3)
+    wall = trimesh.creation.box(extents=(0.2, 4.0, 4.0))
+    wall.apply_translation([3.0, 0.0, 0.0])
+    _, open_ = _inside_length(SceneGeometry(sphere, [wall]), points, to_light, None)
+    assert not open_.any()
