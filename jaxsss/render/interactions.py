@@ -15,7 +15,6 @@ list of (query, entity) pairs sorted by query; the material-dependent radiant ex
 from __future__ import annotations
 
 import functools
-import os
 from concurrent.futures import ThreadPoolExecutor
 from typing import NamedTuple
 
@@ -137,12 +136,18 @@ def _compiled_traversal():
     import numba
 
     @numba.njit(cache=True, nogil=True)
+    def grown(a, need):
+        """``a`` itself, or a copy with room for at least ``need`` entries (at least twice the size)."""
+        if need <= a.shape[0]:
+            return a
+        return np.concatenate((a, np.empty(max(need, 2 * a.shape[0]) - a.shape[0], a.dtype)))
+
+    @numba.njit(cache=True, nogil=True)
     def traverse(area, centroid, lo, hi, shift, cell_code, first_child, n_child, is_leaf, samples, n, x, code, eps,
                  r2_cell, r2_sample, stack_size):
         n_q = x.shape[0]
-        cap = max(1024, 64 * n_q)
-        query = np.empty(cap, np.int32)
-        entity = np.empty(cap, np.int32)
+        query = np.empty(max(1024, 64 * n_q), np.int32)
+        entity = np.empty(query.shape[0], np.int32)
         nodes = np.empty(1024, np.int64)
         stack = np.empty(stack_size, np.int64)
         m = 0
@@ -165,18 +170,14 @@ def _compiled_traversal():
                 # Eq. 12: accept v when A_v / |x - P_v|^2 < eps and x is outside v's cell (same code at v's level).
                 d0, d1, d2 = x0 - centroid[v, 0], x1 - centroid[v, 1], x2 - centroid[v, 2]
                 if area[v] < eps * (d0 * d0 + d1 * d1 + d2 * d2) and (code[iq] >> shift[v]) != cell_code[v]:
-                    if n_nodes == nodes.shape[0]:
-                        nodes = np.concatenate((nodes, np.empty_like(nodes)))
+                    nodes = grown(nodes, n_nodes + 1)
                     nodes[n_nodes] = v + n
                     n_nodes += 1
                     continue
                 c0, nc = first_child[v], n_child[v]
                 if is_leaf[v]:
-                    # A leaf hands over its samples (always accepted, but beyond r_cut).
-                    if m + nc > cap:
-                        cap *= 2
-                        query = np.concatenate((query, np.empty(cap - query.shape[0], np.int32)))
-                        entity = np.concatenate((entity, np.empty(cap - entity.shape[0], np.int32)))
+                    # A leaf hands over its samples (those within r_cut, when there is one).
+                    query, entity = grown(query, m + nc), grown(entity, m + nc)
                     for e in range(c0, c0 + nc):
                         if r2_sample >= 0.0:
                             s0, s1, s2 = x0 - samples[e, 0], x1 - samples[e, 1], x2 - samples[e, 2]
@@ -190,10 +191,7 @@ def _compiled_traversal():
                     for c in range(nc - 1, -1, -1):
                         stack[sp] = c0 + c - n
                         sp += 1
-            if m + n_nodes > cap:
-                cap = 2 * (m + n_nodes)
-                query = np.concatenate((query, np.empty(cap - query.shape[0], np.int32)))
-                entity = np.concatenate((entity, np.empty(cap - entity.shape[0], np.int32)))
+            query, entity = grown(query, m + n_nodes), grown(entity, m + n_nodes)
             accepted = np.sort(nodes[:n_nodes])
             for j in range(n_nodes):
                 query[m] = iq
@@ -216,13 +214,6 @@ def _traverse_chunk(t: _Tables, x: np.ndarray, eps: float, r_cut: float | None, 
 
 _MIN_CHUNK = 256
 """The fewest queries :func:`build_interactions` gives a thread (below it the per-chunk overhead dominates)."""
-
-
-def _default_threads() -> int:
-    try:
-        return max(1, len(os.sched_getaffinity(0)))
-    except AttributeError:  # pragma: no cover - not on Linux
-        return max(1, os.cpu_count() or 1)
 
 
 def build_interactions(
@@ -265,10 +256,13 @@ def build_interactions(
     r_cut = _check_positive(r_cut, "r_cut", allow_none=True)
     check_integer(chunk_size, "chunk_size", 1, owner="build_interactions")
     if n_threads is None:
-        n_threads = _default_threads()
+        from jaxsss.mc.engine import usable_cores
+
+        n_threads = usable_cores()
     check_integer(n_threads, "n_threads", 1, owner="build_interactions")
     if octree.n_entities > _INT32_MAX:
-        raise ValueError(f"build_interactions(octree=...) has {octree.n_entities} entities; int32 ids need <= {_INT32_MAX}")
+        raise ValueError(f"build_interactions(octree=...) has {octree.n_entities} entities; int32 ids need <= "
+                         f"{_INT32_MAX}")
     t = _tables(octree)
     n_q = x.shape[0]
     code = octree.point_codes(x)
