@@ -171,6 +171,8 @@ class _EmbreeIntersector:
         self.scene = rtcore_scene.EmbreeScene()
         TriangleMesh(scene=self.scene, vertices=((vertices - self.origin) * self.scale).astype(np.float32),
                      indices=np.asarray(mesh.faces).astype(np.int32))
+        # embreex builds the BVH on the scene's first query: build it here, before threads share the scene.
+        self.scene.run(np.zeros((1, 3), dtype=np.float32), np.array([[1.0, 0.0, 0.0]], dtype=np.float32))
         self.plane_point = np.ascontiguousarray(mesh.triangles[:, 0, :], dtype=np.float64)
         self.plane_normal = np.ascontiguousarray(mesh.face_normals, dtype=np.float64)
 
@@ -189,6 +191,7 @@ class _EmbreeIntersector:
         """``(face (R,), t (R,))`` of the first hit of each ray (unit ``directions``); -1 and inf on a miss."""
         from jaxsss.mc.engine import usable_cores
 
+        cores = usable_cores()
         origins = np.ascontiguousarray(origins, dtype=np.float64)
         directions = np.ascontiguousarray(directions, dtype=np.float64)
         n = len(origins)
@@ -200,8 +203,8 @@ class _EmbreeIntersector:
             sl = slice(s, s + RAY_CHUNK)
             self._cast_chunk(origins[sl], directions[sl], face[sl], t[sl])
 
-        if len(starts) > 1 and usable_cores() > 1:
-            with ThreadPoolExecutor(max_workers=min(usable_cores(), len(starts))) as pool:
+        if len(starts) > 1 and cores > 1:
+            with ThreadPoolExecutor(max_workers=min(cores, len(starts))) as pool:
                 list(pool.map(run, starts))
         else:
             for s in starts:

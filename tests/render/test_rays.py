@@ -139,11 +139,15 @@ def test_a_lone_convex_mesh_is_told_apart(make, convex):
 
 
 def test_large_batches_are_cast_in_chunks_over_threads(monkeypatch):
-    """Chunks smaller than the batch (spread over the cores) give the same hits as one call."""
+    """Chunks smaller than the batch (spread over the cores) give the same hits as one call, on a scene whose BVH was
+    built when it was made."""
     mesh = trimesh.creation.icosphere(subdivisions=3, radius=8.0)
     origins, directions = _rays(5000, 6.0, seed=2)
     whole = SceneGeometry(mesh).first_hit(origins, directions)
     monkeypatch.setattr(rays, "RAY_CHUNK", 333)
-    chunked = SceneGeometry(mesh).first_hit(origins, directions)
+    geometry = SceneGeometry(mesh)
+    # The BVH is built before any query: threads never race to build it.
+    assert geometry.intersector.scene.is_committed
+    chunked = geometry.first_hit(origins, directions)
     for a, b in zip(whole, chunked, strict=True):
         np.testing.assert_array_equal(a, b)
