@@ -109,6 +109,26 @@ def to_device(a):
     return None if a is None else jax.device_put(np.asarray(a))
 
 
+def host_jit(fun):
+    """``numba.njit(fun, cache=True, nogil=True)``: the renderer's compiled host loops (the octree traversal, the
+    near-field split, the refinement of Embree's hits), their machine code cached on disk beside the module or in
+    the user's cache directory. Where Numba can write to neither (a read-only install and home), ``cache=True`` is
+    refused when the function is decorated; the function is then compiled in each process (the traversal in about
+    6 s), and a warning says so."""
+    import warnings
+
+    import numba
+
+    try:
+        return numba.njit(cache=True, nogil=True)(fun)
+    except RuntimeError as e:
+        if "no locator available" not in str(e):
+            raise
+        warnings.warn(f"Numba cannot cache {fun.__qualname__} (no writable cache directory; NUMBA_CACHE_DIR chooses "
+                      "one): it is compiled in each process", stacklevel=2)
+        return numba.njit(nogil=True)(fun)
+
+
 _CPU_FIELDS = ("vendor_id", "model name", "flags", "cpu family", "model", "Features", "CPU implementer",
                "CPU architecture", "CPU variant", "CPU part", "isa", "cpu")
 """/proc/cpuinfo fields (x86, arm64, riscv, power) that name the CPU and its instruction-set extensions."""

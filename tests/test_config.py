@@ -133,3 +133,22 @@ def test_render_jit_takes_its_options_at_top_level_and_none_when_nested():
     assert jnp.allclose(jax.jit(lambda y: g(y) * 2.0)(x), 2.0 * expected, rtol=1e-14)  # traced argument
     assert jnp.allclose(jax.jit(lambda s: g(x) * s)(2.0), 2.0 * expected, rtol=1e-14)  # closed over
     assert jnp.allclose(jax.jvp(g, (x,), (jnp.ones_like(x),))[0], expected, rtol=1e-14)
+
+
+def _add(a, b):
+    return a + b
+
+
+def test_host_jit_caches_on_disk_and_compiles_without_a_place_to_cache(monkeypatch):
+    """The renderer's Numba loops cache their machine code; where Numba finds no writable place for it (every cache
+    locator declines, as on a read-only install and home), the loop still compiles, uncached, with a warning."""
+    import numba.core.caching as caching
+
+    from jaxsss._config import host_jit
+
+    cached = host_jit(_add)
+    assert cached(2, 3) == 5 and isinstance(cached._cache, caching.FunctionCache)
+    monkeypatch.setattr(caching.CacheImpl, "_locator_classes", [])
+    with pytest.warns(UserWarning, match="Numba cannot cache _add"):
+        uncached = host_jit(_add)
+    assert uncached(2, 3) == 5 and isinstance(uncached._cache, caching.NullCache)

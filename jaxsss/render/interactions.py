@@ -133,16 +133,16 @@ def _compiled_traversal():
     """The traversal of one chunk of queries, compiled by Numba (cached on disk; released GIL, so threads share the
     chunks). Depth-first per query: its samples come out in increasing id (children are visited in Morton order),
     its accepted nodes are sorted apart and follow them (every node id exceeds every sample id)."""
-    import numba
+    from jaxsss._config import host_jit
 
-    @numba.njit(cache=True, nogil=True)
+    @host_jit
     def grown(a, need):
         """``a`` itself, or a copy with room for at least ``need`` entries (at least twice the size)."""
         if need <= a.shape[0]:
             return a
         return np.concatenate((a, np.empty(max(need, 2 * a.shape[0]) - a.shape[0], a.dtype)))
 
-    @numba.njit(cache=True, nogil=True)
+    @host_jit
     def traverse(area, centroid, lo, hi, shift, cell_code, first_child, n_child, is_leaf, samples, n, x, code, eps,
                  r2_cell, r2_sample, stack_size):
         n_q = x.shape[0]

@@ -64,9 +64,9 @@ def pair_blocks(values: np.ndarray, fill: int, block: int) -> np.ndarray:
 @functools.cache
 def _compiled_split():
     """:func:`split_near`'s loop, compiled by Numba (cached on disk): one pass over the pairs, no temporaries."""
-    import numba
+    from jaxsss._config import host_jit
 
-    @numba.njit(cache=True, nogil=True)
+    @host_jit
     def split(query, entity, centroid, q_pos, n, r2):
         k = query.shape[0]
         far = np.empty(k, np.bool_)

@@ -215,9 +215,9 @@ class _EmbreeIntersector:
 @functools.cache
 def _compiled_refine():
     """The double-precision refinement of Embree's hits, compiled by Numba (cached on disk; released GIL)."""
-    import numba
+    from jaxsss._config import host_jit
 
-    @numba.njit(cache=True, nogil=True)
+    @host_jit
     def refine(prim, origins, directions, plane_point, plane_normal, face, t):
         along = np.zeros(prim.shape[0], dtype=np.bool_)
         for i in range(prim.shape[0]):
