@@ -152,3 +152,27 @@ def test_host_jit_caches_on_disk_and_compiles_without_a_place_to_cache(monkeypat
     with pytest.warns(UserWarning, match="Numba cannot cache _add"):
         uncached = host_jit(_add)
     assert uncached(2, 3) == 5 and isinstance(uncached._cache, caching.NullCache)
+
+
+_HOST_LOOPS = """
+import numpy as np, trimesh
+from jaxsss.render import interactions, pairs, rays
+from jaxsss.render.octree import build_octree
+rng = np.random.default_rng(0)
+p = rng.normal(size=(500, 3))
+tree = build_octree(p, np.full(500, 0.01), np.ones(500))
+inter = interactions.build_interactions(tree, p[:50], 0.1)
+pairs.split_near(inter, p[:50], tree, 0.5)
+rays.SceneGeometry(trimesh.creation.icosphere(2)).first_hit(np.zeros((4, 3)), np.eye(3)[[0, 1, 2, 0]])
+loops = (interactions._compiled_traversal(), pairs._compiled_split(), rays._compiled_refine())
+print([sum(f.stats.cache_misses.values()) for f in loops], [sum(f.stats.cache_hits.values()) for f in loops])
+"""
+
+
+def test_host_loops_load_their_machine_code_in_a_new_process():
+    """The renderer's Numba loops compile once per machine: a second process finds every one in the disk cache
+    (a loop that closes over a jitted helper gets a new cache key in every process, and compiles every time)."""
+    run = [sys.executable, "-c", _HOST_LOOPS]
+    subprocess.run(run, check=True, capture_output=True, text=True, timeout=600)
+    out = subprocess.run(run, check=True, capture_output=True, text=True, timeout=600).stdout.split("\n")[-2]
+    assert out == "[0, 0, 0] [1, 1, 1]", out

@@ -132,22 +132,19 @@ def _tables(octree: Octree) -> _Tables:
 def _compiled_traversal():
     """The traversal of one chunk of queries, compiled by Numba (cached on disk; released GIL, so threads share the
     chunks). Depth-first per query: its samples come out in increasing id (children are visited in Morton order),
-    its accepted nodes are sorted apart and follow them (every node id exceeds every sample id)."""
-    from jaxsss._config import host_jit
+    its accepted nodes are sorted apart and follow them (every node id exceeds every sample id).
 
-    @host_jit
-    def grown(a, need):
-        """``a`` itself, or a copy with room for at least ``need`` entries (at least twice the size)."""
-        if need <= a.shape[0]:
-            return a
-        return np.concatenate((a, np.empty(max(need, 2 * a.shape[0]) - a.shape[0], a.dtype)))
+    The function closes over nothing: Numba's disk cache keys a closure on its variables' pickles, and a jitted helper
+    pickles differently in every process (a growth helper here made every process compile the traversal again)."""
+    from jaxsss._config import host_jit
 
     @host_jit
     def traverse(area, centroid, lo, hi, shift, cell_code, first_child, n_child, is_leaf, samples, n, x, code, eps,
                  r2_cell, r2_sample, stack_size):
         n_q = x.shape[0]
-        query = np.empty(max(1024, 64 * n_q), np.int32)
-        entity = np.empty(query.shape[0], np.int32)
+        cap = max(1024, 64 * n_q)
+        query = np.empty(cap, np.int32)
+        entity = np.empty(cap, np.int32)
         nodes = np.empty(1024, np.int64)
         stack = np.empty(stack_size, np.int64)
         m = 0
@@ -170,14 +167,18 @@ def _compiled_traversal():
                 # Eq. 12: accept v when A_v / |x - P_v|^2 < eps and x is outside v's cell (same code at v's level).
                 d0, d1, d2 = x0 - centroid[v, 0], x1 - centroid[v, 1], x2 - centroid[v, 2]
                 if area[v] < eps * (d0 * d0 + d1 * d1 + d2 * d2) and (code[iq] >> shift[v]) != cell_code[v]:
-                    nodes = grown(nodes, n_nodes + 1)
+                    if n_nodes == nodes.shape[0]:
+                        nodes = np.concatenate((nodes, np.empty_like(nodes)))
                     nodes[n_nodes] = v + n
                     n_nodes += 1
                     continue
                 c0, nc = first_child[v], n_child[v]
                 if is_leaf[v]:
                     # A leaf hands over its samples (those within r_cut, when there is one).
-                    query, entity = grown(query, m + nc), grown(entity, m + nc)
+                    if m + nc > cap:
+                        cap = 2 * (m + nc)
+                        query = np.concatenate((query, np.empty(cap - query.shape[0], np.int32)))
+                        entity = np.concatenate((entity, np.empty(cap - entity.shape[0], np.int32)))
                     for e in range(c0, c0 + nc):
                         if r2_sample >= 0.0:
                             s0, s1, s2 = x0 - samples[e, 0], x1 - samples[e, 1], x2 - samples[e, 2]
@@ -191,7 +192,10 @@ def _compiled_traversal():
                     for c in range(nc - 1, -1, -1):
                         stack[sp] = c0 + c - n
                         sp += 1
-            query, entity = grown(query, m + n_nodes), grown(entity, m + n_nodes)
+            if m + n_nodes > cap:
+                cap = 2 * (m + n_nodes)
+                query = np.concatenate((query, np.empty(cap - query.shape[0], np.int32)))
+                entity = np.concatenate((entity, np.empty(cap - entity.shape[0], np.int32)))
             accepted = np.sort(nodes[:n_nodes])
             for j in range(n_nodes):
                 query[m] = iq
