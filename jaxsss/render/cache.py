@@ -70,6 +70,7 @@ from jaxsss.render.plan import PlanItem, make_plan
 from jaxsss.render.radiance import F_dt_external, diffuse_albedo
 from jaxsss.render.rays import OBJECT_TRANSLUCENT, scene_geometry
 from jaxsss.render.renderer import assemble_prepared, irradiance_pass
+from jaxsss.render.samples import lit_positions
 from jaxsss.render.shading import shading_points
 
 __all__ = [
@@ -329,7 +330,8 @@ def _cache_geometry(scene, error_bound: float, *, eps=None, resolution=None, one
     geometry, samples, tree, timings["octree"] = irradiance_pass(scene, plan)
     timings["pass1_irradiance"] = time.perf_counter() - t0 - timings["octree"]
     t0 = time.perf_counter()
-    shading = shading_points(scene, geometry, plan, resolution, pixel_mask, samples.light.irradiance.shape[-1])
+    shading = shading_points(scene, geometry, plan, resolution, pixel_mask, samples.light.irradiance.shape[-1],
+                             lit=lit_positions(samples))
     timings["camera_rays"] = time.perf_counter() - t0
     # Pass 2: cache placement.
     t0 = time.perf_counter()

@@ -3,8 +3,9 @@
 Image convention: ``(H, W)`` with row 0 at the top; ``fov_deg`` is the vertical field of view. With ``spp > 1``
 each pixel gets ``spp`` stratified jittered rays (deterministic for a seed) and the pixel is their mean (a box
 filter, as the path tracer's references). :func:`camera_rays` can cast a subset of the pixels at another ``spp`` (the
-renderer's extra rays at edges, :func:`jaxsss.render.shading.edge_pixels`); each ray carries its weight in its
-pixel's mean.
+renderer's extra rays at edges and dark pixels, :func:`jaxsss.render.shading.edge_pixels` and
+:func:`~jaxsss.render.shading.dark_pixel_grid`), jittered or at the cells' centres; each ray carries its weight in
+its pixel's mean.
 """
 
 from __future__ import annotations
@@ -47,19 +48,20 @@ def camera_frame(camera):
     return forward, right, up
 
 
-def _jitter(spp: int, rng: np.random.Generator, n_pixels: int) -> np.ndarray:
-    """``(n_pixels, spp, 2)`` sub-pixel offsets in ``[0, 1)``: stratified on a near-square grid, jittered."""
+def _jitter(spp: int, rng: np.random.Generator, n_pixels: int, jitter: bool = True) -> np.ndarray:
+    """``(n_pixels, spp, 2)`` sub-pixel offsets in ``[0, 1)``: stratified on a near-square grid, jittered (or, with
+    ``jitter=False``, at the cells' centres: the midpoint rule)."""
     if spp == 1:
         return np.full((n_pixels, 1, 2), 0.5)
     nx = int(np.ceil(np.sqrt(spp)))
     ny = int(np.ceil(spp / nx))
     cells = np.stack(np.meshgrid(np.arange(nx), np.arange(ny), indexing="xy"), axis=-1).reshape(-1, 2)[:spp]
-    u = rng.random((n_pixels, spp, 2))
+    u = rng.random((n_pixels, spp, 2)) if jitter else np.full((n_pixels, spp, 2), 0.5)
     return (cells[None, :, :] + u) / np.array([nx, ny])
 
 
 def camera_rays(camera, resolution=None, seed: int = 0, pixels: np.ndarray | None = None,
-                spp: int | None = None) -> CameraRays:
+                spp: int | None = None, jitter: bool = True) -> CameraRays:
     """Primary rays of a pinhole camera.
 
     Args:
@@ -69,6 +71,9 @@ def camera_rays(camera, resolution=None, seed: int = 0, pixels: np.ndarray | Non
         seed: jitter seed (only used when ``spp > 1``).
         pixels: optional flat pixel indices ``(P,)``: cast only these.
         spp: optional rays per pixel overriding the camera's.
+        jitter: each ray at a random point of its cell of the pixel's stratified grid (default), or at the cell's
+            centre (``False``: the midpoint rule, deterministic; the renderer's dark pixels,
+            :func:`jaxsss.render.shading.dark_pixel_grid`).
     """
     width, height = (int(v) for v in (resolution or camera.resolution))
     spp = int(camera.spp if spp is None else spp)
@@ -79,7 +84,7 @@ def camera_rays(camera, resolution=None, seed: int = 0, pixels: np.ndarray | Non
     half_w = half_h * width / height
     index = np.arange(width * height) if pixels is None else np.asarray(pixels, dtype=np.int64)
     n_pix = len(index)
-    offs = _jitter(spp, np.random.default_rng(seed), n_pix)
+    offs = _jitter(spp, np.random.default_rng(seed), n_pix, jitter)
     rows, cols = np.divmod(index, width)
     px = (cols[:, None] + offs[..., 0]) / width  # (n_pix, spp) in [0, 1) left to right
     py = (rows[:, None] + offs[..., 1]) / height  # top to bottom

@@ -35,7 +35,7 @@ from jaxsss.render.pairs import BLOCK_PAIRS, PairLists, near_radius, pair_info, 
 from jaxsss.render.plan import ScenePlan, make_plan
 from jaxsss.render.rays import scene_geometry
 from jaxsss.render.mirror import ReflectingPoints, mirror_field
-from jaxsss.render.samples import irradiance_samples
+from jaxsss.render.samples import irradiance_samples, lit_positions
 from jaxsss.render.shading import ShadingPoints, point_shading, shaded_fields, shading_points
 
 __all__ = ["EXIT_ROWS", "MARCHED_EXITS", "Prepared", "assemble_prepared", "irradiance_pass", "prepare"]
@@ -448,7 +448,8 @@ def prepare(scene, *, method: str | None = None, eps: float | None = None, resol
     # Camera rays and lighting at the shaded points.
     t0 = time.perf_counter()
     if points is None:
-        shading = shading_points(scene, geometry, plan, resolution, pixel_mask, samples.light.irradiance.shape[-1])
+        shading = shading_points(scene, geometry, plan, resolution, pixel_mask, samples.light.irradiance.shape[-1],
+                                 lit=lit_positions(samples))
     else:
         shading = point_shading(points, samples.light.irradiance.shape[-1])
         plan = plan._replace(single_scattering=False, specular=False)

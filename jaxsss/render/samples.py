@@ -35,6 +35,7 @@ __all__ = [
     "IrradianceSamples",
     "indirect_irradiance",
     "irradiance_samples",
+    "lit_positions",
     "sample_count",
     "sample_surface",
     "self_irradiance",
@@ -227,6 +228,12 @@ def self_irradiance(scene, geometry, points, normals, *, n_rays: int = 16, seed:
     n_c = light_channels(scene.lights)
     return _bounce(scene, geometry, points, normals, n_rays, seed,
                    lambda obj: np.where((obj == 0)[:, None], np.ones(n_c), 0.0))
+
+
+def lit_positions(samples: IrradianceSamples) -> np.ndarray:
+    """``(M, 3)`` mm: the samples that some light reaches directly (the lit surface, from which light creeps into
+    the dark parts; :func:`jaxsss.render.shading.dark_pixel_grid`)."""
+    return samples.positions[samples.light.irradiance.sum(axis=tuple(range(1, samples.light.irradiance.ndim))) > 0.0]
 
 
 def irradiance_samples(scene, geometry, n: int, *, shadows: bool, indirect: bool, seed: int = 0,

@@ -59,7 +59,8 @@ Schema (units: mm, 1/mm, degrees; "3 values" means ``[x, y, z]`` or ``[r, g, b]`
     resolution = [512, 512]   # [width, height] in pixels, positive integers
     spp = 1                   # samples per pixel, >= 1
     edge_spp = 9              # samples per pixel at creases, and at terminators and shadow edges where the surface
-                              # turns, when above spp, >= 1 (1: none; jaxsss.render.shading.edge_pixels)
+                              # turns, when above spp, >= 1 (1: none; jaxsss.render.shading.edge_pixels); also the
+                              # most a dark pixel's grid gets (jaxsss.render.shading.dark_pixel_grid)
 
     [[occluder]]              # optional opaque objects (e.g. a floor): cast shadows, rendered grey Lambertian
     builtin = "slab"          # the same mesh keys as [mesh]
@@ -161,7 +162,8 @@ AREA_LIGHT_SAMPLES = 16
 ENVIRONMENT_SAMPLES = 64
 EDGE_SPP = 9
 """The camera's default ``edge_spp``: rays per pixel where the image has an edge the pixel centre misrepresents
-(:func:`jaxsss.render.shading.edge_pixels`; docs/path_tracer.md, "Pixels are areas")."""
+(:func:`jaxsss.render.shading.edge_pixels`; docs/path_tracer.md, "Pixels are areas"), and the most rays of a dark
+pixel's grid (:func:`jaxsss.render.shading.dark_pixel_grid`: 3 x 3)."""
 SWITCH_VALUES = ("auto", "on", "off")
 
 
@@ -225,7 +227,8 @@ class Light:
 @dataclass(frozen=True, eq=False)
 class Camera:
     """A pinhole camera: ``fov_deg`` is vertical; ``resolution`` is ``(width, height)``; ``up`` is a unit vector;
-    ``spp`` rays per pixel, ``edge_spp`` at the pixels of :func:`jaxsss.render.shading.edge_pixels` when larger."""
+    ``spp`` rays per pixel, ``edge_spp`` at the pixels of :func:`jaxsss.render.shading.edge_pixels` when larger, and
+    up to ``edge_spp`` (a square grid) at those of :func:`jaxsss.render.shading.dark_pixel_grid`."""
 
     position: np.ndarray
     look_at: np.ndarray

@@ -9,6 +9,8 @@ so this module is the renderer's shared interface for it:
   scattering or specular need it) and the ``constant`` image of everything that is not the translucent object;
 - :func:`edge_pixels` finds the pixels whose centre misrepresents them (creases, and terminators or shadow edges on
   a turning surface): :func:`shading_points` casts the camera's ``edge_spp`` rays there instead of ``spp``;
+  :func:`dark_pixel_grid` finds the unlit pixels across which the light that crept past a terminator falls off
+  steeply, and those get a grid of rays at its cells' centres (at most ``edge_spp``);
 - :func:`see_through` continues the camera's rays through thin walls at ``eta = 1`` (the part of the object behind a
   wall is seen through it);
 - :func:`point_shading` is the same for given surface points (validation against Monte Carlo);
@@ -37,8 +39,9 @@ from jaxsss.render.exit_direction import azimuth_harmonics
 from jaxsss.render.lights import light_field
 from jaxsss.render.rays import OBJECT_TRANSLUCENT, Hits
 
-__all__ = ["CREASE_DEG", "EDGE_CONTRAST", "EDGE_TURN_DEG", "VIEW_REENTRIES", "SeenThrough", "ShadedPoints",
-           "ShadingPoints", "constant_image", "edge_pixels", "exit_azimuth", "face_the_eye", "image_stats",
+__all__ = ["CREASE_DEG", "DARK_CELL_FALLOFF", "DARK_REACH", "EDGE_CONTRAST", "EDGE_TURN_DEG", "MIN_COS_VIEW",
+           "VIEW_REENTRIES", "CentreLight", "SeenThrough", "ShadedPoints", "ShadingPoints", "centre_light",
+           "constant_image", "dark_pixel_grid", "edge_pixels", "exit_azimuth", "face_the_eye", "image_stats",
            "mirror_direction", "point_shading", "see_through", "seen_in_mirror", "shaded_fields", "shading_points"]
 
 
@@ -114,22 +117,34 @@ this many degrees from the centre's (a smooth 20 mm sphere at 0.8 mm per pixel t
 CREASE_DEG = 30.0
 """:func:`edge_pixels`: a crease (edge, rim, spout) runs through a pixel's neighbourhood when some object pixel's normal
 is more than this many degrees from the centre's."""
+DARK_CELL_FALLOFF = 1.0
+""":func:`dark_pixel_grid`: the most e-folds of the light's fall-off past a terminator that one cell of a dark pixel's
+grid may span. The midpoint rule then misses at most ``sinh(0.5) / 0.5 - 1 = 4%`` of an exponential's mean along it
+(at a cell that spans the whole e-fold; most span less). Chosen on error against time (docs/path_tracer.md, "Dark
+pixels are areas too"): on the back-lit skin1 sphere 0.7 / 1.0 / 1.4 / 2.0 gave green and blue 0.074 / 0.060, 0.077 /
+0.060, 0.086 / 0.071 and 0.092 / 0.077 at 1.49 / 1.32 / 1.12 / 1.10 times the time without grids (0.148 / 0.184)."""
+DARK_REACH = 4.6
+""":func:`dark_pixel_grid`: a channel's light past the lit surface counts while ``sigma_tr d`` is under this (it has
+fallen to 1% of what it was at the lit edge, ``exp(-4.6)``)."""
+MIN_COS_VIEW = 0.2
+""":func:`dark_pixel_grid`: the view's slant is counted at most ``1 / MIN_COS_VIEW`` (nearer the limb the footprint
+grows without bound; those pixels get the largest grid)."""
 
 
-def edge_pixels(scene, geometry, resolution=None, shadows: bool = True, centre_hits=None) -> np.ndarray:
-    """``(H, W)`` bool: the translucent pixels whose centre misrepresents them, from the pixel centres' geometry (no
-    material: the shaded points are the same for every medium).
+class CentreLight(NamedTuple):
+    """What the pixel tests need from the pixel centres' rays (:func:`centre_light`; ``H W`` pixels)."""
 
-    A pixel is an area; its value is the mean over it (what a path tracer's box filter measures). The centre's
-    radiance is far from that mean where the surface turns inside the pixel: at a crease (some object pixel of the 3
-    x 3 neighbourhood has a normal more than :data:`CREASE_DEG` from the centre's), and where a terminator or shadow
-    edge meets a turning surface (some object pixel of the neighbourhood receives under :data:`EDGE_CONTRAST` of its
-    largest direct irradiance from the lights other than an environment, and some normal is more than
-    :data:`EDGE_TURN_DEG` from the centre's). On a smooth surface diffusion blurs a terminator over more than a pixel
-    and the centre stands for the pixel. Measured against Mitsuba (docs/path_tracer.md, "Pixels are areas"): on the
-    marble teapot (64 x 64) the centres above the base were 0.23-0.55 of the pixels' means, and these pixels' nine
-    rays take its terminator band from 0.16-0.21 to 0.11; on the smooth skin1 sphere they flag 15 pixels and change
-    nothing. Silhouettes are left to the camera's ``spp`` (partly covered pixels, which the comparisons leave out).
+    shape: tuple  # (H, W)
+    on: np.ndarray  # (H W,) bool: the centre's first hit is the translucent object
+    position: np.ndarray  # (H W, 3) mm, the hit (NaN off the object)
+    normal: np.ndarray  # (H W, 3) shading normal facing the eye (NaN off the object)
+    direct: np.ndarray  # (H W,) W/mm^2: irradiance from the lights other than an environment (0 off the object)
+    distance: np.ndarray  # (H W,) mm from the camera to the hit (inf off the object)
+    cos_view: np.ndarray  # (H W,) cosine between the normal and the way to the eye (0 off the object)
+
+
+def centre_light(scene, geometry, resolution=None, shadows: bool = True, centre_hits=None) -> CentreLight:
+    """The pixel centres' hits, normals and direct irradiance, for :func:`edge_pixels` and :func:`dark_pixel_grid`.
 
     Args:
         scene: the :class:`~jaxsss.render.scene.Scene`.
@@ -144,14 +159,49 @@ def edge_pixels(scene, geometry, resolution=None, shadows: bool = True, centre_h
     hits = geometry.first_hit(rays.origins, rays.directions) if centre_hits is None else centre_hits
     on = hits.obj == OBJECT_TRANSLUCENT
     direct = np.zeros(h * w)
+    position = np.full((h * w, 3), np.nan)
     normal = np.full((h * w, 3), np.nan)
+    distance = np.full(h * w, np.inf)
+    cos_view = np.zeros(h * w)
     idx = np.flatnonzero(on)
     if idx.size:
-        normal[idx] = face_the_eye(geometry.shading_normals(hits.face[idx], hits.position[idx]), -rays.directions[idx])
+        to_eye = -rays.directions[idx]
+        position[idx] = hits.position[idx]
+        normal[idx] = face_the_eye(geometry.shading_normals(hits.face[idx], hits.position[idx]), to_eye)
+        distance[idx] = hits.t[idx]
+        cos_view[idx] = np.einsum("ij,ij->i", normal[idx], to_eye)
     lights = [light for light in scene.lights if light.kind != "environment"]
     if lights and idx.size:
         direct[idx] = light_field(lights, hits.position[idx], normal[idx], geometry if shadows else None
                                   ).irradiance.sum(axis=(1, 2))
+    return CentreLight((h, w), on, position, normal, direct, distance, cos_view)
+
+
+def edge_pixels(scene, geometry, resolution=None, shadows: bool = True, centre_hits=None,
+                centre: CentreLight | None = None) -> np.ndarray:
+    """``(H, W)`` bool: the translucent pixels whose centre misrepresents them, from the pixel centres' geometry (no
+    material: the shaded points are the same for every medium).
+
+    A pixel is an area; its value is the mean over it (what a path tracer's box filter measures). The centre's
+    radiance is far from that mean where the surface turns inside the pixel: at a crease (some object pixel of the 3
+    x 3 neighbourhood has a normal more than :data:`CREASE_DEG` from the centre's), and where a terminator or shadow
+    edge meets a turning surface (some object pixel of the neighbourhood receives under :data:`EDGE_CONTRAST` of its
+    largest direct irradiance from the lights other than an environment, and some normal is more than
+    :data:`EDGE_TURN_DEG` from the centre's). On a smooth surface diffusion blurs a lit terminator over more than a
+    pixel and the centre stands for the pixel (past the terminator it may not: :func:`dark_pixel_grid`). Measured
+    against Mitsuba (docs/path_tracer.md, "Pixels are areas"): on the marble teapot (64 x 64) the centres above the
+    base were 0.23-0.55 of the pixels' means, and these pixels' nine rays take its terminator band from 0.16-0.21 to
+    0.11; on the smooth skin1 sphere they flag 15 pixels and change nothing. Silhouettes are left to the camera's
+    ``spp`` (partly covered pixels, which the comparisons leave out).
+
+    Args:
+        scene, geometry, resolution, shadows, centre_hits: as :func:`centre_light`.
+        centre: :func:`centre_light`'s result when the caller has it (the other arguments but ``scene`` are then
+            unused).
+    """
+    centre = centre or centre_light(scene, geometry, resolution, shadows, centre_hits)
+    h, w = centre.shape
+    on, normal, direct = centre.on, centre.normal, centre.direct
 
     def neighbourhood(a):
         """``(9, H, W, ...)``: each pixel's 3 x 3 neighbours (the image's border repeated outside it)."""
@@ -159,21 +209,75 @@ def edge_pixels(scene, geometry, resolution=None, shadows: bool = True, centre_h
         p = np.pad(a, ((1, 1), (1, 1)) + ((0, 0),) * (a.ndim - 2), mode="edge")
         return np.stack([p[dy:dy + h, dx:dx + w] for dy in range(3) for dx in range(3)])
 
-    on = on.reshape(h, w)
     # The largest turn of the surface: the smallest cosine between a neighbour's normal and the centre's.
     n = neighbourhood(normal)
     cos_turn = np.min(np.nan_to_num(np.einsum("khwc,hwc->khw", n, n[4]), nan=1.0), axis=0)
     # A terminator or shadow edge: a translucent neighbour lit under EDGE_CONTRAST of the brightest one.
-    e = neighbourhood(np.where(on.reshape(-1), direct, np.nan))
+    e = neighbourhood(np.where(on, direct, np.nan))
     e_max = np.max(np.where(np.isnan(e), -np.inf, e), axis=0)
     e_min = np.min(np.where(np.isnan(e), np.inf, e), axis=0)
     edge = (e_max > 0.0) & (e_min < EDGE_CONTRAST * e_max)
     crease = cos_turn < np.cos(np.radians(CREASE_DEG))
     turning = cos_turn < np.cos(np.radians(EDGE_TURN_DEG))
-    return on & (crease | (edge & turning))
+    return on.reshape(h, w) & (crease | (edge & turning))
 
 
-def shading_points(scene, geometry, plan, resolution, pixel_mask, n_channels: int) -> ShadingPoints:
+def dark_pixel_grid(scene, geometry, resolution=None, shadows: bool = True, centre_hits=None,
+                    centre: CentreLight | None = None, max_side: int | None = None,
+                    lit: np.ndarray | None = None) -> np.ndarray:
+    """``(H, W)`` int ``n >= 1``: the side of the ``n x n`` grid of rays (at the cells' centres) that a dark pixel
+    needs for its mean, 1 elsewhere.
+
+    Where no light but an environment reaches the surface (past a terminator, in a shadow) the light there has
+    crept in from the lit parts and falls off with the distance about as ``exp(-sigma_tr d)``. Across a pixel whose
+    footprint on the surface, ``Delta / cos_view`` (``Delta`` the pixel's width at the hit's distance), spans ``k =
+    sigma_tr Delta / cos_view`` e-folds of it, the centre gives ``sinh(k / 2) / (k / 2)`` less than the pixel's mean
+    (convexity): 4% at ``k = 1``, 42% at ``k = 3``. skin1's blue (``l_d = 0.68`` mm) past the terminator of a 20 mm
+    sphere seen at 0.8 mm per pixel is there (docs/path_tracer.md, "Dark pixels are areas too"). An ``n x n`` grid at
+    the cells' centres leaves ``sinh(k / 2n) / (k / 2n) - 1``; ``n`` is the smallest with ``k / n`` under
+    :data:`DARK_CELL_FALLOFF`, at most ``max_side``, for the fastest channel that still has light there: with the
+    directly lit surface points ``lit``, a channel counts at a pixel whose distance ``d`` from the nearest of them is
+    under :data:`DARK_REACH` ``/ sigma_tr`` (ketchup's green and blue have faded a pixel past the terminator; its red
+    has not). Not with an environment light: a sky lights the dark side itself, smoothly.
+
+    The grid depends on the scene's material (``sigma_tr``): a fit keeps the grid of the material it was prepared
+    with, which only decides where rays are spent.
+
+    Args:
+        scene, geometry, resolution, shadows, centre_hits, centre: as :func:`edge_pixels`.
+        max_side: the largest grid's side (default ``floor(sqrt(edge_spp))`` of the camera: 3 for its default 9
+            rays; 1 turns the grid off).
+        lit: ``(M, 3)`` mm, points of the object's surface that a light other than an environment reaches directly
+            (the pass-1 irradiance samples it lights), or None (every channel counts everywhere).
+    """
+    centre = centre or centre_light(scene, geometry, resolution, shadows, centre_hits)
+    h, w = centre.shape
+    max_side = int(np.sqrt(scene.camera.edge_spp) + 1e-9) if max_side is None else int(max_side)
+    kinds = {light.kind for light in scene.lights}
+    medium = scene.material.medium
+    sigma_tr = np.atleast_1d(np.sqrt(3.0 * np.asarray(medium.sigma_a) * np.asarray(medium.sigma_t_prime)))  # (C,)
+    dark = np.flatnonzero(centre.on & (centre.direct <= 0.0))
+    side = np.ones(h * w, dtype=np.int64)
+    if max_side < 2 or "environment" in kinds or not kinds or not np.any(sigma_tr > 0.0) or not dark.size:
+        return side.reshape(h, w)
+    if lit is not None and not len(lit):
+        return side.reshape(h, w)  # nothing is lit: no light crept anywhere
+    # The pixel's width at the hit's distance (pinhole: 2 tan(fov / 2) / H per unit distance).
+    width = centre.distance[dark] * 2.0 * np.tan(np.radians(scene.camera.fov_deg) / 2.0) / h
+    # e-folds of exp(-sigma_tr d) across the pixel's footprint (its long side, at the view's slant), per channel.
+    k = (width / np.maximum(centre.cos_view[dark], MIN_COS_VIEW))[:, None] * sigma_tr[None, :]
+    if lit is not None:
+        from scipy.spatial import cKDTree
+
+        d, _ = cKDTree(np.asarray(lit, dtype=np.float64)).query(centre.position[dark])
+        # Only the channels whose light has not faded out on the way from the lit surface.
+        k = np.where(sigma_tr[None, :] * d[:, None] < DARK_REACH, k, 0.0)
+    side[dark] = np.clip(np.ceil(np.max(k, axis=1) / DARK_CELL_FALLOFF), 1, max_side)
+    return side.reshape(h, w)
+
+
+def shading_points(scene, geometry, plan, resolution, pixel_mask, n_channels: int,
+                   lit: np.ndarray | None = None) -> ShadingPoints:
     """Camera rays, their hits, the constant image, and the lighting at the shaded points.
 
     Args:
@@ -183,21 +287,31 @@ def shading_points(scene, geometry, plan, resolution, pixel_mask, n_channels: in
         resolution: ``(W, H)`` overriding the camera's, or None.
         pixel_mask: optional ``(H, W)`` bool: only these pixels are shaded (the rest stay 0).
         n_channels: ``C``.
+        lit: ``(M, 3)`` mm, directly lit points of the surface, for :func:`dark_pixel_grid`, or None.
     """
     rays = camera_rays(scene.camera, resolution, seed=scene.render.seed)
     traced = None  # (rays, their hits) already traced, when the edge test traced the pixel centres
     if scene.camera.edge_spp > rays.spp:
-        # At one ray per pixel the camera's rays are the centres the edge test traces: trace them once.
+        # At one ray per pixel the camera's rays are the centres the pixel tests trace: trace them once.
         centre = geometry.first_hit(rays.origins, rays.directions) if rays.spp == 1 else None
-        # Edge pixels: edge_spp rays instead of spp (edge_pixels).
-        edges = edge_pixels(scene, geometry, resolution, plan.shadows, centre_hits=centre).reshape(-1)
+        light = centre_light(scene, geometry, resolution, plan.shadows, centre_hits=centre)
+        # Edge pixels: edge_spp jittered rays instead of spp (edge_pixels).
+        edges = edge_pixels(scene, geometry, centre=light).reshape(-1)
+        # Dark pixels: an n x n grid at the cells' centres where it has more rays than spp (dark_pixel_grid).
+        side = np.where(edges, 1, dark_pixel_grid(scene, geometry, centre=light, lit=lit).reshape(-1))
+        side = np.where(side * side > rays.spp, side, 1)
         if centre is not None:
             traced = len(rays.pixel), centre
-        if edges.any():
-            stay = ~edges[rays.pixel]
-            rays = rays.where(stay).join(camera_rays(
-                scene.camera, resolution, seed=scene.render.seed + 1, pixels=np.flatnonzero(edges),
-                spp=scene.camera.edge_spp))
+        more = edges | (side > 1)
+        if more.any():
+            stay = ~more[rays.pixel]
+            rays = rays.where(stay)
+            if edges.any():
+                rays = rays.join(camera_rays(scene.camera, resolution, seed=scene.render.seed + 1,
+                                             pixels=np.flatnonzero(edges), spp=scene.camera.edge_spp))
+            for n in np.unique(side[side > 1]):
+                rays = rays.join(camera_rays(scene.camera, resolution, pixels=np.flatnonzero(side == n),
+                                             spp=int(n * n), jitter=False))
             if traced is not None:
                 traced = int(stay.sum()), Hits(*(a[stay] for a in centre))
     h, w = rays.shape
