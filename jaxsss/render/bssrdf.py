@@ -716,7 +716,7 @@ class WhiteKernel(eqx.Module):
     def value_shape(self, flux_shape, weighted: bool = False):
         """One pair's value: ``(R K, C)`` node rows (:attr:`rows_per_node` ``R``), or ``(C,)`` radiance when the sums
         pass exit ``weights`` (:meth:`pair`; ``(2, C)`` with the exit's current, the exitance's part and the
-        current's, :meth:`rows_radiance`)."""
+        current's, :meth:`rows_radiance`: the sums' result, from one complex value per pair and channel)."""
         k, c = flux_shape[-2:]
         if weighted:
             return (2, c) if self.exit_current is not None else (c,)
@@ -787,7 +787,8 @@ class WhiteKernel(eqx.Module):
         """``(P, C)``: the pairs' node values ``v`` ``(P, K, C)`` as radiance, ``sum_k v_k (W_k + c_k W_K+k)`` with
         the shaded points' exit ``weights`` ``(P, J, C)`` (:func:`exit_weights`; ``J = K`` without the split) and
         the amplitude ``c`` of :meth:`_amplitude`. Each ``v_k`` is used once: with the split's two uses XLA computed
-        the whole pair twice (skin1's far sum took 1.8x as long)."""
+        the whole pair twice (skin1's far sum took 1.8x as long). With the exit's current, complex: the exitance's
+        part real, the current's imaginary."""
         k = v.shape[1]
         if not self.split and self.exit_current is None:
             return jnp.sum(v * weights, axis=1)
@@ -795,11 +796,13 @@ class WhiteKernel(eqx.Module):
         if self.exit_current is None:
             return jnp.sum(v * w, axis=1)
         current = self._current(delta, sources, normals)
-        # The current's rows, weighted by the view's tangential direction: a t . t_o Y_k; kept apart ((P, 2, C)) for
-        # the sign of their sum per shaded point (current_radiance).
+        # The current's rows, weighted by the view's tangential direction: a t . t_o Y_k; kept apart for the sign of
+        # their sum per shaded point (current_radiance), as the imaginary part of one complex value per channel: two
+        # real rows made XLA evaluate each pair's profile twice, once per row (the back-lit skin1 sphere's sum took
+        # 1.15x as long); the sums unpack it (jaxsss.render.radiance.exitance_pairs).
         first = 1 + int(self.split)
         wc = sum(current[:, i] * weights[:, (first + i) * k:(first + 1 + i) * k] for i in range(3))
-        return jnp.stack([jnp.sum(v * w, axis=1), jnp.sum(v * wc, axis=1)], axis=1)
+        return jnp.sum(jax.lax.complex(v * w, v * wc), axis=1)
 
     def rows_radiance(self, rows, weights):
         """``(Q, C)``: node rows ``(Q, R K, C)`` as radiance by the exit ``weights`` ``(Q, R K, C)``; ``(Q, 2, C)``
@@ -917,7 +920,8 @@ class WhiteKernel(eqx.Module):
         :meth:`sources` (``s_k = 0`` without a shift), times the curvature ratio when ``normals = (n_x, n_P)`` are
         given (and the oblique nodes' azimuth when the kernel has it). The nodes stay apart: their exit distributions
         differ (:func:`exit_radiance_nodes`). With the shaded points' exit ``weights`` ``(P, J, C)``
-        (:func:`exit_weights`), the pairs' radiance ``(P, C)`` instead."""
+        (:func:`exit_weights`), the pairs' radiance ``(P, C)`` instead (complex with the exit's current: the
+        exitance's part real, the current's imaginary, :meth:`_radiance`)."""
         r, f = self._distance(delta, sources)
         v = self._curved(r, delta, normals) * f
         if self.azimuth is not None and normals is not None:
@@ -927,9 +931,8 @@ class WhiteKernel(eqx.Module):
             return self._split(v * view, delta, normals, sources)
         # The eye's cut after the sum over the nodes (it is the same for all of them).
         cut = view[:, 0] if jnp.ndim(view) else view
-        if jnp.ndim(cut) and self.exit_current is not None:
-            cut = cut[:, None]  # the radiance's two parts (P, 2, C)
-        return self._radiance(v, delta, weights, normals, sources) * cut
+        radiance = self._radiance(v, delta, weights, normals, sources)
+        return radiance * jnp.asarray(cut, radiance.dtype)
 
     def near_terms(self, delta, sources, area, rho0, normals=None, weights=None):
         """A near pair's ``(point, w F, w A)``, each ``(P, K, C)``, with the near-field weight at the distance from

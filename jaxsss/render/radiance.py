@@ -282,7 +282,15 @@ def exitance_near(medium: Medium, query_pos, sample_pos, sample_area, sample_flu
                                               None if weights is None else weights[query])
     area = seg(w_area)
     spread = seg(w_flux) / _per_pair(jnp.where(area > 0, area, 1.0), w_flux)
-    return _weighted(kernel, kernel.disc(spread, rho0), weights) + seg(point)
+    return _weighted(kernel, kernel.disc(spread, rho0), weights) + _parts(seg(point))
+
+
+def _parts(summed):
+    """A white kernel's sums with the exit's current, one complex value per channel (the exitance's part real, the
+    current's imaginary; :meth:`jaxsss.render.bssrdf.WhiteKernel.pair`), as the ``(Q, 2, C)`` parts the renderer
+    takes (:func:`jaxsss.render.bssrdf.current_radiance`); real sums unchanged. Unpacked after the sum over the pairs,
+    so that each pair's profile is evaluated once."""
+    return jnp.stack([summed.real, summed.imag], axis=1) if jnp.iscomplexobj(summed) else summed
 
 
 def _weighted(kernel, exitance, weights):
@@ -325,8 +333,9 @@ def exitance_pairs(medium: Medium, query_pos, ent_pos, ent_flux, pair_query, pai
                            None if normals is None else (normals[0][q], normals[1][e]),
                            None if weights is None else weights[q])
 
-    return scan_pairs(contrib, n_q, kernel.value_shape(ent_flux.shape, weights is not None), ent_flux.dtype,
-                      pair_query, pair_entity)
+    # One pair's value as the kernel gives it (one complex value per channel with the exit's current, _parts).
+    value = jax.eval_shape(contrib, pair_query[0], pair_entity[0])
+    return _parts(scan_pairs(contrib, n_q, value.shape[1:], value.dtype, pair_query, pair_entity))
 
 
 def scan_pairs(contrib, n_queries: int, value_shape: tuple, dtype, pair_query, pair_entity):
@@ -478,7 +487,7 @@ def exitance_direct(medium: Medium, query_pos, sample_pos, sample_flux, sample_a
 
         w_area = per_query(w_area)
         spread = per_query(w_flux) / _per_pair(jnp.where(w_area > 0, w_area, 1.0), per_query(w_flux))
-        return per_query(point) + _weighted(kernel, kernel.disc(spread, rho0), w)
+        return _parts(per_query(point)) + _weighted(kernel, kernel.disc(spread, rho0), w)
 
     shape = kernel.value_shape(sample_flux.shape, weights is not None)
     return jax.lax.map(one, (qp, qn, qw)).reshape((-1,) + shape)[:n_q]

@@ -129,7 +129,8 @@ def test_the_kernels_rows_and_both_signs(kernels):
     pair = np.asarray(kernel_pair(current, d, kernel_sources(current, still), (up, up)))
     np.testing.assert_allclose(pair[0, k:] + pair[1, k:], 0.0, atol=1e-12 * np.abs(pair).max())
     weights = jnp.asarray(rng.uniform(-1.0, 1.0, size=(n, 4 * k, 2)))
-    parts = np.asarray(kernel_pair(current, delta, kernel_sources(current, flux), normals, weights))
+    packed = np.asarray(kernel_pair(current, delta, kernel_sources(current, flux), normals, weights))  # complex
+    parts = np.stack([packed.real, packed.imag], axis=1)
     np.testing.assert_allclose(parts, np.asarray(row_parts(jnp.asarray(b), weights, k)), rtol=1e-10)
     np.testing.assert_array_equal(np.asarray(current.weighted_disc(3.0))[k:], 0.0)
     radiance, flow = jnp.array([[1.0, 1.0, 1.0]]), jnp.array([[0.3, -0.3, -2.0]])

@@ -118,10 +118,12 @@ def test_the_current_rows_follow_the_flow_and_cancel_on_symmetric_pairs(kernels)
     np.testing.assert_allclose(pair[0, 2 * k:] + pair[1, 2 * k:], 0.0, atol=1e-12 * np.abs(pair).max())
     assert np.all(pair[0, 2 * k:3 * k] > 0.0)  # along +x, away from the entry at -d
     # With exit weights: the exitance's rows and the current's as two radiances per pair (their sign is taken after
-    # the sum), as row_parts gives them from the rows.
+    # the sum), as row_parts gives them from the rows: one complex value per channel, the current's part imaginary
+    # (the sums unpack it to value_shape's two rows).
     weights = jnp.asarray(rng.uniform(-1.0, 1.0, size=(n, 5 * k, 2)))
-    parts = np.asarray(kernel_pair(current, delta, kernel_sources(current, flux), normals, weights))
-    assert parts.shape == (n, 2, 2) and current.value_shape(flux.shape, True) == (2, 2)
+    packed = np.asarray(kernel_pair(current, delta, kernel_sources(current, flux), normals, weights))
+    assert packed.shape == (n, 2) and np.iscomplexobj(packed) and current.value_shape(flux.shape, True) == (2, 2)
+    parts = np.stack([packed.real, packed.imag], axis=1)
     np.testing.assert_allclose(parts, np.asarray(row_parts(jnp.asarray(b), weights, 2 * k)), rtol=1e-10)
     np.testing.assert_allclose(parts.sum(axis=1), np.sum(b * np.asarray(weights), axis=1), rtol=1e-10)
     # The near field's disc carries no current.
