@@ -99,13 +99,15 @@ def test_the_kernel_keeps_the_plane_and_takes_only_the_near_part(monkeypatch):
     flat = jnp.array([[0.5, 0.0, 0.0], [2.0, 1.0, 0.0], [6.0, 0.0, 0.0]])
     np.testing.assert_allclose(np.asarray(kernel_pair(corrected, flat, kernel_sources(corrected, flux), (up, up))),
                                np.asarray(kernel_pair(flat_kernel, flat, kernel_sources(flat_kernel, flux))), rtol=1e-6)
-    # The same kernel with Q = 1 everywhere: the diffusion ratio, capped at the same sphere (two channels: a shape the
-    # curvature table's compiled program has not seen, so the patch is traced). The patched program is then dropped
-    # from the jitted table's cache: a later test on this worker with two channels at eta 1.4
-    # (tests/render/test_dielectric_current.py's kernels) got Q = 1 from it.
+    # The same kernel with Q = 1 everywhere: the diffusion ratio, capped at the same sphere (two channels). The jitted
+    # table's cache is emptied before the patch, so that the patch is traced whatever ran earlier on this worker (an
+    # earlier module's two-channel kernel at eta 1.4 gave it the real Q: the two kernels were then equal), and after
+    # it: a later test on this worker with two channels at eta 1.4 (tests/render/test_dielectric_current.py's kernels)
+    # got Q = 1 from it.
     monkeypatch.setattr(dc, "dielectric_log_correction_table",
                         lambda r_lu, kappa_lu, mus_, albedo, eta: jnp.zeros((len(mus_),) + kappa_lu.shape))
     twice = Medium(sigma_a=jnp.array([0.03, 0.03]), sigma_s_prime=jnp.array([0.97, 0.97]), eta=1.4)
+    bssrdf._curvature_table._cached.clear_cache()
     try:
         ratio_only = white_kernel(twice, sources, mus, shift=True, curvature=True)
     finally:
