@@ -199,7 +199,7 @@ def edge_pixels(scene, geometry, resolution=None, shadows: bool = True, centre_h
         centre: :func:`centre_light`'s result when the caller has it (the other arguments but ``scene`` are then
             unused).
     """
-    centre = centre or centre_light(scene, geometry, resolution, shadows, centre_hits)
+    centre = centre_light(scene, geometry, resolution, shadows, centre_hits) if centre is None else centre
     h, w = centre.shape
     on, normal, direct = centre.on, centre.normal, centre.direct
 
@@ -237,8 +237,8 @@ def dark_pixel_grid(scene, geometry, resolution=None, shadows: bool = True, cent
     the cells' centres leaves ``sinh(k / 2n) / (k / 2n) - 1``; ``n`` is the smallest with ``k / n`` under
     :data:`DARK_CELL_FALLOFF`, at most ``max_side``, for the fastest channel that still has light there: with the
     directly lit surface points ``lit``, a channel counts at a pixel whose distance ``d`` from the nearest of them is
-    under :data:`DARK_REACH` ``/ sigma_tr`` (ketchup's green and blue have faded a pixel past the terminator; its red
-    has not). Not with an environment light: a sky lights the dark side itself, smoothly.
+    under :data:`DARK_REACH` ``/ sigma_tr`` (ketchup's green and blue have faded 2-3 mm past the terminator, its red
+    after 20 mm). Not with an environment light: a sky lights the dark side itself, smoothly.
 
     The grid depends on the scene's material (``sigma_tr``): a fit keeps the grid of the material it was prepared
     with, which only decides where rays are spent.
@@ -250,7 +250,7 @@ def dark_pixel_grid(scene, geometry, resolution=None, shadows: bool = True, cent
         lit: ``(M, 3)`` mm, points of the object's surface that a light other than an environment reaches directly
             (the pass-1 irradiance samples it lights), or None (every channel counts everywhere).
     """
-    centre = centre or centre_light(scene, geometry, resolution, shadows, centre_hits)
+    centre = centre_light(scene, geometry, resolution, shadows, centre_hits) if centre is None else centre
     h, w = centre.shape
     max_side = int(np.sqrt(scene.camera.edge_spp) + 1e-9) if max_side is None else int(max_side)
     kinds = {light.kind for light in scene.lights}
