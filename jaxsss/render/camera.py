@@ -14,6 +14,8 @@ from typing import NamedTuple
 
 import numpy as np
 
+from jaxsss.render.strata import unit_square
+
 __all__ = ["CameraRays", "camera_frame", "camera_rays"]
 
 
@@ -49,15 +51,12 @@ def camera_frame(camera):
 
 
 def _jitter(spp: int, rng: np.random.Generator, n_pixels: int, jitter: bool = True) -> np.ndarray:
-    """``(n_pixels, spp, 2)`` sub-pixel offsets in ``[0, 1)``: stratified on a near-square grid, jittered (or, with
-    ``jitter=False``, at the cells' centres: the midpoint rule)."""
+    """``(n_pixels, spp, 2)`` sub-pixel offsets in ``[0, 1)``: stratified on a grid of exactly ``spp`` cells
+    (:func:`jaxsss.render.strata.unit_square`), jittered (or, with ``jitter=False``, at the cells' centres: the
+    midpoint rule)."""
     if spp == 1:
         return np.full((n_pixels, 1, 2), 0.5)
-    nx = int(np.ceil(np.sqrt(spp)))
-    ny = int(np.ceil(spp / nx))
-    cells = np.stack(np.meshgrid(np.arange(nx), np.arange(ny), indexing="xy"), axis=-1).reshape(-1, 2)[:spp]
-    u = rng.random((n_pixels, spp, 2)) if jitter else np.full((n_pixels, spp, 2), 0.5)
-    return (cells[None, :, :] + u) / np.array([nx, ny])
+    return unit_square(rng if jitter else None, n_pixels, spp)
 
 
 def camera_rays(camera, resolution=None, seed: int = 0, pixels: np.ndarray | None = None,

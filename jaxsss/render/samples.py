@@ -29,8 +29,10 @@ import trimesh
 
 from jaxsss.render.lights import LightField, capped_samples, light_channels, light_field
 from jaxsss.render.octree import MORTON_BITS, morton_codes
+from jaxsss.render.strata import unit_square
 
 __all__ = [
+    "BOUNCE_RAYS",
     "SAMPLERS",
     "IrradianceSamples",
     "indirect_irradiance",
@@ -162,9 +164,20 @@ def texture_lookup(texture: np.ndarray, uv: np.ndarray) -> np.ndarray:
     return top * (1 - fy) + bottom * fy
 
 
+BOUNCE_RAYS = 8
+"""Rays per irradiance sample for the one-bounce terms (:func:`indirect_irradiance`, :func:`self_irradiance`),
+stratified over the hemisphere. On the marble teapot (161,017 samples, 64 x 64) 8 stratified rays gave the same image
+error against Mitsuba as 16 (mare_lit 0.034 / 0.031 / 0.032 against 0.034 / 0.032 / 0.032, band 0.091 / 0.093 / 0.104
+against 0.091 / 0.099 / 0.112) with pass 1 0.39 s against 0.67-0.98 s; 4 gave 0.035 / 0.032 / 0.033, band 0.095 /
+0.104 / 0.118 (docs/path_tracer.md, "Dark pixels are areas too"). Each sample's estimate is noisy; the profile's sum
+over the many samples within ``l_d`` of a pixel averages it."""
+
+
 def _cosine_directions(normals: np.ndarray, n_rays: int, rng: np.random.Generator) -> np.ndarray:
-    """``(P, n_rays, 3)`` cosine-distributed unit directions about each normal (Malley's method)."""
-    u1, u2 = rng.random((2, len(normals), n_rays))
+    """``(P, n_rays, 3)`` cosine-distributed unit directions about each normal (Malley's method), each point's rays
+    stratified over the unit square (:func:`jaxsss.render.strata.unit_square`)."""
+    u = unit_square(rng, len(normals), n_rays)
+    u1, u2 = u[..., 0], u[..., 1]
     r, phi = np.sqrt(u1), 2.0 * np.pi * u2
     local = np.stack([r * np.cos(phi), r * np.sin(phi), np.sqrt(np.clip(1.0 - u1, 0.0, 1.0))], axis=-1)
     helper = np.where(np.abs(normals[:, :1]) < 0.9, np.array([[1.0, 0.0, 0.0]]), np.array([[0.0, 1.0, 0.0]]))
@@ -198,7 +211,7 @@ def _bounce(scene, geometry, points, normals, n_rays: int, seed: int, weight) ->
     return out.reshape(len(points), n_rays, n_c).mean(axis=1)
 
 
-def indirect_irradiance(scene, geometry, points, normals, *, n_rays: int = 16, seed: int = 0) -> np.ndarray:
+def indirect_irradiance(scene, geometry, points, normals, *, n_rays: int = BOUNCE_RAYS, seed: int = 0) -> np.ndarray:
     """One-bounce diffuse irradiance off the scene's opaque (Lambertian) occluders, ``(P, C)`` W/mm^2.
 
     Cosine-weighted rays: ``E = pi * mean(L)``, with ``L = albedo / pi * E_direct(y)`` at an occluder hit ``y``.
@@ -214,7 +227,7 @@ def indirect_irradiance(scene, geometry, points, normals, *, n_rays: int = 16, s
     return _bounce(scene, geometry, points, normals, n_rays, seed, occluders)
 
 
-def self_irradiance(scene, geometry, points, normals, *, n_rays: int = 16, seed: int = 0) -> np.ndarray:
+def self_irradiance(scene, geometry, points, normals, *, n_rays: int = BOUNCE_RAYS, seed: int = 0) -> np.ndarray:
     """The translucent object's own lit surface seen from points on it: ``(P, C)`` W/mm^2, the cosine-weighted mean
     of the direct irradiance at the first hits on the object (zero for a convex object, whose surface a ray leaving it
     never meets again).
@@ -237,7 +250,8 @@ def lit_positions(samples: IrradianceSamples) -> np.ndarray:
 
 
 def irradiance_samples(scene, geometry, n: int, *, shadows: bool, indirect: bool, seed: int = 0,
-                       indirect_rays: int = 16, chords: bool = False, self_bounce: bool = False) -> IrradianceSamples:
+                       indirect_rays: int = BOUNCE_RAYS, chords: bool = False,
+                       self_bounce: bool = False) -> IrradianceSamples:
     """Pass 1: ``n`` samples on the translucent mesh with their direct (and optionally indirect) irradiance.
 
     Args:

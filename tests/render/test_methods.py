@@ -107,11 +107,17 @@ def test_report_schema(results, key):
 @pytest.mark.parametrize("key", [c[0] for c in CASES])
 def test_images_unchanged_by_the_refactor(results, key):
     """Against the images rendered before the registry: equal to float rounding (summation order changed: pass 2
-    is now one jitted call instead of chunks)."""
+    is now one jitted call instead of chunks). The milk box's light off its floor is estimated since 2026-12-01 with
+    8 rays per sample stratified over the hemisphere, where 16 unstratified rays made the reference
+    (jaxsss.render.samples.BOUNCE_RAYS; the estimator itself is checked against a view factor in test_floor.py): that
+    case differs by the two estimates' noise, at most 0.0099 (1.7% of the peak; 0.0065 with 64 stratified rays, so
+    mostly the reference's own), and is held at 2% of the peak; its sum within 0.1%."""
     ref = np.load(REFERENCE)[key]
     img = results[key].image
     assert img.shape == ref.shape
-    np.testing.assert_allclose(img, ref, rtol=1e-9, atol=1e-12 * float(ref.max()))
+    atol = (0.02 if key == "hierarchical_occluder" else 1e-12) * float(ref.max())
+    np.testing.assert_allclose(img, ref, rtol=1e-9, atol=atol)
+    assert abs(float(np.sum(img)) / float(np.sum(ref)) - 1.0) < 1e-3
 
 
 def test_layered_image_is_a_jax_function_of_the_outer_layer(results):
