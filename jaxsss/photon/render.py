@@ -238,7 +238,8 @@ def prepare_photon(scene, *, n_photons: int | None = None, eps: float | None = N
     t0 = time.perf_counter()
     if points is None:
         geometry = scene_geometry(scene.mesh, [o.mesh for o in scene.occluders])
-        shading = shading_points(scene, geometry, base_plan, resolution, pixel_mask, trace.sources.power.shape[1])
+        shading = shading_points(scene, geometry, base_plan, resolution, pixel_mask, trace.sources.power.shape[1],
+                                 lit=trace.sources.entry_points())
     else:
         shading = point_shading(points, trace.sources.power.shape[1], owner="prepare_photon")
         base_plan = base_plan._replace(single_scattering=False, specular=False)

@@ -79,6 +79,13 @@ class Sources(NamedTuple):
     generation: np.ndarray
     cos_in: np.ndarray
 
+    def entry_points(self) -> np.ndarray:
+        """``(M, 3)`` mm: where the legs that came straight from a light (generation 0) entered the surface, each
+        source moved back up its incidence plane's normal by its depth: the directly lit surface, from which light
+        creeps into the dark parts (:func:`jaxsss.render.shading.dark_pixel_grid`)."""
+        first = self.generation == 0
+        return self.position[first] + self.depth[first, None] * self.normal[first]
+
     @property
     def n(self) -> int:
         return int(self.position.shape[0])

@@ -123,6 +123,14 @@ def test_sources_lie_inside_with_unit_normals_and_nonnegative_depth(box, grey_fu
         np.testing.assert_array_equal(src.generation, 0)  # a convex box: nothing re-enters
 
 
+def test_entry_points_lie_on_the_lit_face(deep_sources):
+    """The sun straight down on the box: every leg entered its top face (z = 10 mm), where the entry points are (the
+    directly lit surface the renderer's dark pixels measure their distance from)."""
+    entries = deep_sources.sources.entry_points()
+    assert entries.shape == (deep_sources.sources.n, 3)
+    np.testing.assert_allclose(entries[:, 2], 10.0, atol=1e-9)
+
+
 def test_normal_incidence_sources_sit_one_mean_free_path_deep(box_geometry, deep_sources):
     src = deep_sources.sources
     np.testing.assert_array_equal(src.normal, np.broadcast_to([0.0, 0.0, 1.0], src.normal.shape))
