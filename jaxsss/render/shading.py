@@ -255,7 +255,7 @@ def dark_pixel_grid(scene, geometry, resolution=None, shadows: bool = True, cent
     max_side = int(np.sqrt(scene.camera.edge_spp) + 1e-9) if max_side is None else int(max_side)
     kinds = {light.kind for light in scene.lights}
     medium = scene.material.medium
-    sigma_tr = np.atleast_1d(np.sqrt(3.0 * np.asarray(medium.sigma_a) * np.asarray(medium.sigma_t_prime)))  # (C,)
+    sigma_tr = np.atleast_1d(np.asarray(medium.sigma_tr, dtype=np.float64))  # (C,)
     dark = np.flatnonzero(centre.on & (centre.direct <= 0.0))
     side = np.ones(h * w, dtype=np.int64)
     if max_side < 2 or "environment" in kinds or not kinds or not np.any(sigma_tr > 0.0) or not dark.size:
