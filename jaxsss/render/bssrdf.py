@@ -672,9 +672,9 @@ class WhiteKernel(eqx.Module):
     # pair's tangential direction from the node's (shifted) entry (x, y, z).
     exit_current: tuple | None = None
     # An oblique beam's light ahead of its entry (None: off; with the curvature's transport correction): sigma_t'
-    # (C,) and the factor's B and G rows (K, C, len(CORRECTION_KAPPA), D) (jaxsss.render.oblique_azimuth); each far
-    # pair of an oblique node is multiplied by G (1 + B cos phi), phi the pair's azimuth about the entry from the
-    # travel.
+    # (C,) and the factor's (G, B, B_2) rows (K, C, len(CORRECTION_KAPPA), D, 3) (jaxsss.render.oblique_azimuth);
+    # each far pair of an oblique node is multiplied by G (1 + B cos phi + B_2 cos 2 phi), phi the pair's azimuth
+    # about the entry from the travel.
     azimuth: tuple | None = None
     # The near field's mean flux density weighted by w R instead of w (a profile without the first order's peak:
     # :func:`multiple_orders`; :meth:`near_terms`).
@@ -897,12 +897,13 @@ class WhiteKernel(eqx.Module):
         return 1.0 - jnp.sum(h[:, :, None] * loss, axis=1, keepdims=True)
 
     def _azimuth(self, delta, sources, normals):
-        """``(P, K, C)``: each oblique node's factor ``G (1 + B cos phi)`` (:mod:`jaxsss.render.oblique_azimuth`) at
-        the pair's chord and curvature, ``phi`` the azimuth of the shaded point about the (unshifted) entry from the
-        node's travel (its shift's direction), in the entry's tangent plane; 1 for the normal node."""
+        """``(P, K, C)``: each oblique node's factor ``G (1 + B cos phi + B_2 cos 2 phi)``
+        (:mod:`jaxsss.render.oblique_azimuth`) at the pair's chord and curvature, ``phi`` the azimuth of the shaded
+        point about the (unshifted) entry from the node's travel (its shift's direction), in the entry's tangent plane;
+        1 for the normal node."""
         from jaxsss.render.oblique_azimuth import azimuth_factor
 
-        sigma_t_prime, b_rows, g_rows = self.azimuth
+        sigma_t_prime, rows = self.azimuth
         d = jnp.sqrt(jnp.maximum(jnp.sum(delta * delta, axis=-1), 1e-300))[:, None, None]
         kappa = jnp.maximum(pair_curvature(delta, normals[0][:, :3], normals[1]), 0.0)[:, None, None]
         # The offset in the entry's tangent plane, and its cosine with each node's travel (0 where there is none).
@@ -913,7 +914,7 @@ class WhiteKernel(eqx.Module):
         norm = jnp.sqrt(jnp.maximum(jnp.sum(tangential * tangential, axis=-1), 1e-300))[:, None, None] * jnp.sqrt(
             jnp.maximum(jnp.sum(shift * shift, axis=1), 1e-300))
         cos_phi = jnp.where(norm > 1e-12, along / jnp.where(norm > 1e-12, norm, 1.0), 0.0)
-        return azimuth_factor(b_rows, g_rows, kappa / sigma_t_prime, d * sigma_t_prime, cos_phi)
+        return azimuth_factor(rows, kappa / sigma_t_prime, d * sigma_t_prime, cos_phi)
 
     def pair(self, delta, sources, normals=None, weights=None):
         """``(P, K, C)``: ``R_k(|delta - s_k|) F_k`` for offsets ``delta = x - P`` ``(P, 3)`` mm and the entities'
@@ -1062,7 +1063,8 @@ def white_kernel(medium: Medium, sources: WhiteSources, mus: tuple = (1.0,) + KE
     Fresnel walks' table, :mod:`jaxsss.render.dielectric_current`). ``curvature_transport`` (with ``curvature`` and
     ``first_order``): the curvature ratio times its transport correction ``Q``, capped at the correction table's
     smallest sphere (:mod:`jaxsss.render.curvature_correction`). ``oblique_azimuth`` (with ``curvature_transport`` and
-    ``shift``): the oblique nodes' far pairs times ``G (1 + B cos phi)`` (:mod:`jaxsss.render.oblique_azimuth`)."""
+    ``shift``): the oblique nodes' far pairs times ``G (1 + B cos phi + B_2 cos 2 phi)``
+    (:mod:`jaxsss.render.oblique_azimuth`)."""
     from jaxsss.mc.white_family import load_white_family
     from jaxsss.render.passage import passage_cells, passage_loss_table
 
@@ -1129,7 +1131,7 @@ def white_kernel(medium: Medium, sources: WhiteSources, mus: tuple = (1.0,) + KE
         c = kernel.sigma_s.shape
         kernel = eqx.tree_at(lambda k: k.azimuth, kernel,
                              (jnp.broadcast_to(medium.sigma_a + medium.sigma_s_prime, c),
-                              *azimuth_rows(tuple(mus), jnp.broadcast_to(medium.alpha_prime, c))),
+                              azimuth_rows(tuple(mus), jnp.broadcast_to(medium.alpha_prime, c))),
                              is_leaf=lambda x: x is None)
     if not curvature:
         return kernel
