@@ -51,6 +51,7 @@ SCENES = {"skin1, 20 mm sphere": ("skin1_sphere.toml", None, None),
           "skin1, 20 mm sphere, lit from behind": ("skin1_sphere.toml", None, (70.0, 90.0, 40.0)),
           "skin1, 8 mm sphere, lit from behind": ("skin1_sphere.toml", 8.0, (28.0, 36.0, 16.0)),
           "chicken1, 20 mm sphere": ("chicken1_sphere.toml", None, None),
+          "chicken1, 20 mm sphere, lit from behind": ("chicken1_sphere.toml", None, (70.0, 90.0, 40.0)),
           "skin1, 20 mm sphere, eta 1.4": ("skin1_sphere.toml", None, None, 1.4),
           "chicken1, 20 mm sphere, eta 1.4": ("chicken1_sphere.toml", None, None, 1.4)}
 """Scene file (the path-traced reference's), the sphere's radius in mm, the point light's position in mm (None: the
@@ -59,7 +60,8 @@ renderer keeps the exit's current of :mod:`jaxsss.render.dielectric_current`; no
 through that boundary, so this walk is the check). The committed references' camera sees the terminator from the light's
 side; lit from behind, it sees it from the dark side, along the light's flow. chicken1's sphere is only 3.3 / 5.7 / 11
 transport lengths in radius (beyond the curvature cap in red), where the exit current of docs/path_tracer.md
-overshot."""
+overshot; lit from behind it is the committed back-lit scene with the largest error (benchmarks/references/materials,
+chicken1_sphere_backlit; docs/path_tracer.md, "The second azimuthal harmonic")."""
 LIGHT_EDGES = np.array([-1.0, -0.5, -0.3, -0.1, 0.1, 0.3, 0.5, 0.7, 0.9, 1.0])
 FINE_EDGES = np.linspace(-1.0, 1.0, 81)
 """The walk's exitance is tallied on these finer bins and interpolated at each shaded point: within a band the
