@@ -34,6 +34,25 @@ sides in green and blue (albedo 0.73 and 0.67): the walk's light is more peaked 
 phi`` can be. With both harmonics the back-lit chicken1 sphere went from mare_lit 0.162 / 0.228 / 0.238 to 0.156 /
 0.184 / 0.217 against Mitsuba, skin1's from 0.138 / 0.077 / 0.060 to 0.114 / 0.049 / 0.054.
 
+The kernel as rendered. A render's light column on a curved object ends where its refracted ray leaves it, after
+the chord ``t = 2 a mu_i`` on a sphere; the kernel then shortens the profile's shift to the travel that chord allows
+and, where the cut beam matters (:mod:`jaxsss.render.passage`), takes the light lost at ``d / t`` chords from the
+entry, more of it ahead of the entry than behind. The walk's harmonics hold that loss already, so the kernel's own
+``a_n`` are taken with the beam as a render has it (:func:`kernel_harmonic`, chord and cut included). Until 2026-12-01
+they were taken without the chord: the factor put back only the light the uncut kernel lacked ahead, and the render
+then cut it again. At ``mu_i = 0.1`` on a sphere of 11.1 transport lengths (albedo 0.67) the rendered kernel's ``h_1``
+at 2.5-5 transport lengths was 0.20 / 0.04 / -0.12 against the walk's 0.98 / 0.90 / 0.77 (0.99 / 0.90 / 0.78 now), and
+the back-lit chicken1 sphere was 0.156 / 0.184 / 0.217 per pixel against Mitsuba (0.150 / 0.122 / 0.171 now).
+
+The kernel's mean. ``G`` keeps the rendered kernel's azimuthal mean, which ``Q`` was meant to make the walk's. It does
+not quite: ``Q`` is fitted with the cut's azimuthal mean about an unshifted entry and only its far part (``Q > 1``) is
+used, and against the walk's mean by chord bin (``M`` in the table, :func:`kernel_ring_mean`) the rendered oblique
+nodes are 10-25% too bright at 0.5-2 transport lengths (``mu_i = 0.5``) and 10-60% at 0.5-7 (``mu_i = 0.1``, most on
+small spheres at low albedo). Taking ``G`` to the walk's mean (``M`` times it) was measured and not kept: it darkened
+the back-lit images that other parts of the model leave short (the hat mix between incidence nodes on a sphere,
+docs/path_tracer.md), chicken1 0.150 / 0.122 / 0.171 -> 0.149 / 0.142 / 0.188 and four held-out spheres likewise, and
+helped only the red terminator bands (ketchup lit from the side and behind 0.142 -> 0.077).
+
 Tabulated per oblique node (:data:`AZIMUTH_MUS`), albedo (:data:`jaxsss.render.curvature_correction.CORRECTION_ALBEDO`)
 and curvature node (the plane and the correction's spheres), on its chord bins; linear between them and held beyond.
 Where it is used: the sums of the lights behind the object (the scene plan's ``exit azimuth`` line: the exit's
@@ -55,7 +74,7 @@ import jax.numpy as jnp
 import numpy as np
 
 __all__ = ["AZIMUTH_FLOOR", "AZIMUTH_MUS", "azimuth_factor", "azimuth_rows", "factor_harmonics", "fit_oblique_azimuth",
-           "generate_oblique_azimuth", "kernel_harmonic", "load_oblique_azimuth"]
+           "generate_oblique_azimuth", "kernel_harmonic", "kernel_ring_mean", "load_oblique_azimuth"]
 
 AZIMUTH_MUS = (0.5, 0.1)
 """The oblique nodes of the white-oblique kernel (:data:`jaxsss.render.bssrdf.KERNEL_MUS`)."""
@@ -67,6 +86,10 @@ N_HARMONICS = 4
 AZIMUTH_PHOTONS = 1_000_000
 AZIMUTH_MIN_COUNT = 2000
 """Photons a chord bin needs for its harmonic (a ratio of two noisy sums); beyond the last such bin ``B`` is held."""
+MEAN_FROM = 0.5
+"""Transport lengths from the entry from which ``G`` takes the walk's mean (held nearer): within half a transport
+length the shifted profile's peak sits off the entry (the far kernel's ring there is 0.35-0.9 of the walk's), and the
+near field (a disc of ``rho_0``, :meth:`jaxsss.render.bssrdf.WhiteKernel.near_terms`) holds such pairs."""
 N_PHI = 48
 """Azimuths of the ring on which the kernel's own harmonic is taken."""
 AZIMUTH_TABLE = Path(__file__).resolve().parent / "data" / "oblique_azimuth.npz"
@@ -95,36 +118,82 @@ def _tally(albedo: float, mu_i: float, radius: float | None, photons: int, seed:
     return out
 
 
+def _beam_sources(kernel, mus: tuple, mu_i: float, radius: float | None):
+    """``kernel.sources`` of a unit pencil beam at incidence cosine ``mu_i`` (one of ``mus``) entering at the origin
+    (normal ``+z``) towards ``+x``, as a render's light column: on a sphere of ``radius`` its refracted ray runs along
+    the chord ``t = 2 radius mu_i`` (index-matched), so its forward shift is the travel that chord allows
+    (:func:`jaxsss.render.passage.truncated_travel`) and, when the kernel carries the cut beam (``kernel.passage``),
+    the flux carries the chord's rows (:meth:`jaxsss.render.renderer.Prepared.sample_flux`)."""
+    from jaxsss.render.bssrdf import incident_flux
+    from jaxsss.render.passage import truncated_travel
+
+    sin_t = np.sqrt(1.0 - mu_i * mu_i)
+    args = (mus, jnp.ones(1), jnp.array([[mu_i]]))
+    chord = np.inf if radius is None else 2.0 * radius * mu_i
+    travel = truncated_travel(jnp.array([[chord]]), jnp.ones(1))  # (1, 1, 1)
+    flux = incident_flux(*args, jnp.ones((1, 1, 1)), tangent=jnp.array([[[sin_t, 0.0, 0.0]]]), tangent_weight=travel)
+    if kernel.passage is not None:
+        finite = bool(np.isfinite(chord))
+        rows = [incident_flux(*args, jnp.full((1, 1, 1), float(finite) * (chord if finite else 0.0) ** p))
+                for p in (0, 1)]
+        flux = jnp.concatenate([flux] + [row[:, None] for row in rows], axis=1)
+    return kernel.sources(flux)
+
+
+def _rings(kernel, mus: tuple, mu_i: float, radius: float | None, chords) -> np.ndarray:
+    """``(len(chords), N_PHI)``: ``kernel``'s node ``mu_i`` on rings at ``chords`` from the beam's entry
+    (:func:`_beam_sources`) on the plane or a sphere of ``radius`` (each chord below ``2 radius``); the points carry
+    the sphere's normals, so the kernel applies its curvature ratio as in a render."""
+    chords = np.asarray(chords, dtype=np.float64)
+    phi = (np.arange(N_PHI) + 0.5) * 2.0 * np.pi / N_PHI
+    c, p = np.repeat(chords, N_PHI), np.tile(phi, len(chords))
+    if radius is None:
+        points = np.stack([c * np.cos(p), c * np.sin(p), np.zeros_like(c)], axis=1)
+        normals = np.tile([0.0, 0.0, 1.0], (len(c), 1))
+    else:
+        theta = 2.0 * np.arcsin(c / (2.0 * radius))
+        points = radius * np.stack([np.sin(theta) * np.cos(p), np.sin(theta) * np.sin(p), np.cos(theta) - 1.0], axis=1)
+        normals = points / radius + np.array([0.0, 0.0, 1.0])
+    sources = _beam_sources(kernel, mus, mu_i, radius)
+    v = kernel.pair(jnp.asarray(points), jnp.broadcast_to(sources, (len(c),) + sources.shape[1:]),
+                    (jnp.asarray(normals), jnp.tile(jnp.array([0.0, 0.0, 1.0]), (len(c), 1))))
+    return np.asarray(v)[:, mus.index(mu_i), 0].reshape(len(chords), N_PHI)
+
+
 def kernel_harmonic(kernel, mus: tuple, mu_i: float, radius: float | None, d) -> np.ndarray:
     """``(N_HARMONICS, D)``: the relative harmonics ``a_n = 2 <v cos n phi> / <v>`` (``n = 1..4``) of ``kernel``'s node
     ``mu_i`` (one of ``mus``) about a pencil beam's entry, at chords ``d`` on a sphere of ``radius`` (None: the plane),
     in the kernel's units (a medium with ``sigma_t' = 1`` gives transport lengths); NaN beyond the sphere's chord.
-    The beam enters at the origin (normal ``+z``) travelling towards ``+x``; the ring's points carry the sphere's
-    normals, so the kernel applies its curvature ratio as in a render."""
-    from jaxsss.render.bssrdf import incident_flux
-
-    phi = (np.arange(N_PHI) + 0.5) * 2.0 * np.pi / N_PHI
-    sin_t = np.sqrt(1.0 - mu_i * mu_i)
-    flux = incident_flux(mus, jnp.ones(1), jnp.array([[mu_i]]), jnp.ones((1, 1, 1)),
-                         tangent=jnp.array([[[sin_t, 0.0, 0.0]]]))
-    sources = kernel.sources(flux)
+    The beam is a render's light column (:func:`_beam_sources`: its chord's shortened shift and, with the cut beam,
+    the cut's loss ahead of the entry are in ``a_n``)."""
+    d = np.asarray(d, dtype=np.float64)
     out = np.full((N_HARMONICS, len(d)), np.nan)
-    cos_n = np.cos(np.arange(1, N_HARMONICS + 1)[:, None] * phi[None, :])  # (N_HARMONICS, N_PHI)
-    for i, chord in enumerate(np.asarray(d, dtype=np.float64)):
-        if radius is None:
-            points = np.stack([chord * np.cos(phi), chord * np.sin(phi), np.zeros(N_PHI)], axis=1)
-            normals = np.tile([0.0, 0.0, 1.0], (N_PHI, 1))
-        elif chord < 2.0 * radius:
-            theta = 2.0 * np.arcsin(chord / (2.0 * radius))
-            points = radius * np.stack([np.sin(theta) * np.cos(phi), np.sin(theta) * np.sin(phi),
-                                        np.full(N_PHI, np.cos(theta) - 1.0)], axis=1)
-            normals = points / radius + np.array([0.0, 0.0, 1.0])
-        else:
-            continue
-        v = np.asarray(kernel.pair(jnp.asarray(points), jnp.broadcast_to(sources, (N_PHI,) + sources.shape[1:]),
-                                   (jnp.asarray(normals), jnp.tile(jnp.array([0.0, 0.0, 1.0]), (N_PHI, 1)))))
-        v = v[:, mus.index(mu_i), 0]
-        out[:, i] = 2.0 * np.mean(v * cos_n, axis=1) / np.mean(v)
+    inside = np.ones(len(d), bool) if radius is None else d < 2.0 * radius
+    if inside.any():
+        phi = (np.arange(N_PHI) + 0.5) * 2.0 * np.pi / N_PHI
+        v = _rings(kernel, mus, mu_i, radius, d[inside])  # (D', N_PHI)
+        cos_n = np.cos(np.arange(1, N_HARMONICS + 1)[:, None] * phi[None, :])  # (N_HARMONICS, N_PHI)
+        out[:, inside] = 2.0 * (v @ cos_n.T).T / N_PHI / v.mean(axis=1)
+    return out
+
+
+def kernel_ring_mean(kernel, mus: tuple, mu_i: float, radius: float | None, edges=None, n_sub: int = 4) -> np.ndarray:
+    """``(D,)``: the azimuthal mean of ``kernel``'s node ``mu_i`` (per unit incident flux, 1/area in the kernel's
+    units) averaged over each chord bin of ``edges`` (default :data:`CORRECTION_D_EDGES`) by area: ``n_sub`` rings
+    evenly spaced in ``d^2`` (on a sphere the area within chord ``d`` is ``pi d^2``, as on the plane); NaN for bins
+    that reach past a sphere's antipode. The walk's counterpart is its light per photon in the bin over ``pi (d_1^2 -
+    d_0^2)``."""
+    from jaxsss.render.curvature_correction import CORRECTION_D_EDGES
+
+    edges = np.asarray(CORRECTION_D_EDGES if edges is None else edges, dtype=np.float64)
+    e0, e1 = edges[:-1], edges[1:]
+    out = np.full(len(e0), np.nan)
+    inside = np.ones(len(e0), bool) if radius is None else e1 <= 2.0 * radius
+    if inside.any():
+        q = (np.arange(n_sub) + 0.5) / n_sub
+        chords = np.sqrt(e0[inside, None] ** 2 + q[None, :] * (e1[inside, None] ** 2 - e0[inside, None] ** 2))
+        v = _rings(kernel, mus, mu_i, radius, chords.ravel())  # (D' n_sub, N_PHI)
+        out[inside] = v.reshape(-1, n_sub * N_PHI).mean(axis=1)
     return out
 
 
@@ -150,23 +219,29 @@ def factor_harmonics(a, h) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
 def fit_oblique_azimuth(sphere: np.ndarray, plane: np.ndarray) -> dict:
     """``B``, ``B2`` and ``G`` ``(U, A, len(CORRECTION_KAPPA), D)`` from the walks' tallies (``sphere`` ``(U, A, R, 4,
     D)`` over :data:`jaxsss.render.curvature_correction.CORRECTION_RADII`, ``plane`` ``(U, A, 4, D)``) and the kernel's
-    own harmonics (:func:`kernel_harmonic`, the white-oblique kernel with the curvature ratio and ``Q``) on the same
-    spheres (:func:`factor_harmonics`); with the walk's two harmonics ``H_walk`` ``(..., 2, D)`` and the kernel's
-    ``H_kernel`` ``(..., N_HARMONICS, D)`` (NaN where a bin has too few photons)."""
+    own harmonics (:func:`kernel_harmonic`: the white-oblique kernel with the curvature ratio, ``Q`` and the cut beam,
+    the beam a render's light column) on the same spheres (:func:`factor_harmonics`); with the walk's two harmonics
+    ``H_walk`` ``(..., 2, D)`` and the kernel's ``H_kernel`` ``(..., N_HARMONICS, D)`` (NaN where a bin has too few
+    photons), and ``M``, the walk's azimuthal mean over the kernel's (:func:`kernel_ring_mean`; held within
+    :data:`MEAN_FROM` and beyond the last bin with light). ``M`` is a record, not used: ``G`` keeps the kernel's own
+    mean (module docstring, "The kernel's mean")."""
     import jaxsss
     from jaxsss.render.bssrdf import white_kernel, white_tables
     from jaxsss.render.curvature_correction import CORRECTION_ALBEDO, CORRECTION_D, CORRECTION_D_EDGES, CORRECTION_RADII
 
     d = np.asarray(CORRECTION_D)
+    area = np.pi * (CORRECTION_D_EDGES[1:] ** 2 - CORRECTION_D_EDGES[:-1] ** 2)
     mus, sources = white_tables(0.0, 1.0, True)
     shape = (len(AZIMUTH_MUS), len(CORRECTION_ALBEDO), len(CORRECTION_RADII) + 1)
     b_all, b2_all, g_all = np.zeros(shape + (len(d),)), np.zeros(shape + (len(d),)), np.ones(shape + (len(d),))
+    m_all = np.ones(shape + (len(d),))
     h_walk, h_kernel = np.full(shape + (2, len(d)), np.nan), np.full(shape + (N_HARMONICS, len(d)), np.nan)
     index = np.arange(len(d))
     for j, albedo in enumerate(CORRECTION_ALBEDO):
         medium = jaxsss.Medium(jnp.array([1.0 - albedo]), jnp.array([albedo]), 1.0)
+        # The back-lit render's kernel: the cut beam on (a render cuts the light columns that end in the object).
         kernel = white_kernel(medium, sources, mus, shift=True, curvature=True, first_order=True,
-                              curvature_transport=True)
+                              curvature_transport=True, passage=0.0)
         for u, mu in enumerate(AZIMUTH_MUS):
             for r in range(len(CORRECTION_RADII) + 1):
                 radius = None if r == 0 else CORRECTION_RADII[r - 1]
@@ -176,18 +251,22 @@ def fit_oblique_azimuth(sphere: np.ndarray, plane: np.ndarray) -> dict:
                     ok &= CORRECTION_D_EDGES[1:] <= 2.0 * radius
                 hw = np.where(ok, 2.0 * tally[1:3] / np.where(tally[0] > 0, tally[0], 1.0), np.nan)  # (2, D)
                 hk = kernel_harmonic(kernel, mus, mu, radius, d)  # (N_HARMONICS, D)
+                # The walk's mean over the kernel's, bin by bin.
+                mean = np.where(ok, tally[0] / area, np.nan) / kernel_ring_mean(kernel, mus, mu, radius)
                 b1, b2, _ = factor_harmonics(hk, hw)
                 good = np.flatnonzero(np.isfinite(b1) & np.isfinite(b2))
                 known = np.flatnonzero(np.all(np.isfinite(hk), axis=0))
-                if len(good) == 0 or len(known) == 0:
+                fine = np.flatnonzero(np.isfinite(mean) & (mean > 0) & (CORRECTION_D_EDGES[:-1] >= MEAN_FROM))
+                if len(good) == 0 or len(known) == 0 or len(fine) == 0:
                     continue
                 # Held beyond the last bin with light; G from the kernel's harmonics there.
                 b1, b2 = np.interp(index, good, b1[good]), np.interp(index, good, b2[good])
                 hk_all = np.stack([np.interp(index, known, row[known]) for row in hk])
+                m_all[u, j, r] = np.exp(np.interp(index, fine, np.log(mean[fine])))
                 b_all[u, j, r], b2_all[u, j, r] = b1, b2
                 g_all[u, j, r] = 1.0 / (1.0 + (hk_all[0] * b1 + hk_all[1] * b2) / 2.0)
                 h_walk[u, j, r], h_kernel[u, j, r] = hw, hk
-    return {"B": b_all, "B2": b2_all, "G": g_all, "H_walk": h_walk, "H_kernel": h_kernel}
+    return {"B": b_all, "B2": b2_all, "G": g_all, "M": m_all, "H_walk": h_walk, "H_kernel": h_kernel}
 
 
 def generate_oblique_azimuth(photons: int = AZIMUTH_PHOTONS, seed: int = 71, progress: bool = True) -> dict:

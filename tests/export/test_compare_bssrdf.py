@@ -351,8 +351,10 @@ def test_skin1_lit_from_behind_against_its_path_traced_reference():
     says, and keeps the exit's current there (jaxsss.render.exit_current) with the curvature ratio's far field
     corrected by transport (jaxsss.render.curvature_correction) and the oblique beams' light ahead of their entry
     (jaxsss.render.oblique_azimuth, its first two harmonics). The goals are missed in red. Achieved (2026-12-01, stop
-    66, with the azimuth's second harmonic): mare_lit 0.114 / 0.049 / 0.054, band 0.061 / 0.046 / 0.050, sums 0.930 /
-    0.959 / 0.961; green meets the 5% goal, blue nearly, red misses by the model. With the first harmonic alone and the
+    67, the azimuth's harmonics fitted on the kernel as rendered, its chord and cut beam included): mare_lit 0.080 /
+    0.040 / 0.052, band 0.030 / 0.036 / 0.047, sums 0.966 / 0.974 / 0.965; green meets the 5% goal, blue nearly, red
+    misses by the model. Fitted on the uncut kernel (stop 66, with the azimuth's second harmonic): mare_lit 0.114 /
+    0.049 / 0.054, band 0.061 / 0.046 / 0.050, sums 0.930 / 0.959 / 0.961. With the first harmonic alone and the
     dark pixels' grids of rays (jaxsss.render.shading.dark_pixel_grid, stop 65): mare_lit 0.138 / 0.077 / 0.060, band
     0.079 / 0.061 / 0.059, sums 0.913 / 0.949 / 0.956. With the pixel centres alone (stop 49): 0.155 / 0.148 / 0.184, band 0.108 / 0.128 / 0.193, sums 0.898 / 0.924 / 0.925 (skin1's
     blue falls off 1-4 e-folds across a pixel there, and the centre is under the pixel's mean by its convexity);
@@ -368,9 +370,9 @@ def test_skin1_lit_from_behind_against_its_path_traced_reference():
     assert azimuth["included"] and azimuth["reason"].startswith("WARNING") and result.report["plan"]["exit_current"]
     m = compare_images(result.image, data["image"].astype(np.float64), pixel_geometry(scene),
                        coverage=data["coverage"].astype(np.float64))
-    assert np.all(np.array(m["mare_lit"]) <= (0.125, 0.054, 0.060)), m["mare_lit"]
-    assert np.all(np.array(m["mare_band"]) <= (0.067, 0.051, 0.055)), m["mare_band"]
-    assert np.all(np.array(m["sum_ratio"]) >= (0.92, 0.95, 0.95)), m["sum_ratio"]
+    assert np.all(np.array(m["mare_lit"]) <= (0.088, 0.044, 0.057)), m["mare_lit"]
+    assert np.all(np.array(m["mare_band"]) <= (0.033, 0.040, 0.052)), m["mare_band"]
+    assert np.all(np.array(m["sum_ratio"]) >= (0.96, 0.97, 0.96)), m["sum_ratio"]
 
 
 def test_chicken1_lit_from_behind_and_its_far_dark_side():
@@ -378,9 +380,15 @@ def test_chicken1_lit_from_behind_and_its_far_dark_side():
     benchmarks/references/materials; 16384 spp, noise 3.2 / 2.1 / 1.7%). The far dark side (cos -1 to -0.5 to the
     light) is lit by light that crossed the sphere, which converges near the light's antipode: the curvature
     correction's antipode bin (jaxsss.render.curvature_correction.fit_curvature_correction) is what lights it, and the
-    oblique beams' light ahead of their entry (jaxsss.render.oblique_azimuth). Achieved (2026-12-01, stop 66, with the
-    azimuth's second harmonic): mare_lit 0.156 / 0.184 / 0.217, band 0.063 / 0.032 / 0.110, sums 0.926 / 0.901 /
-    0.884; the far dark side's bias -0.08 in red. With the first harmonic alone and the dark pixels' grids of rays
+    oblique beams' light ahead of their entry (jaxsss.render.oblique_azimuth). Achieved (2026-12-01, stop 67, the
+    azimuth's harmonics fitted on the kernel as rendered, its chord and cut beam included): mare_lit 0.150 / 0.122 /
+    0.171, band 0.095 / 0.017 / 0.102, sums 0.980 / 0.950 / 0.897; the far dark side's bias -0.03 in red. The red band
+    moved up (0.063 -> 0.095, +9.5% at cos -0.1 to 0.1): the grazing node's rendered mean is 20-45% above the walk's
+    within a few transport lengths of its entry (jaxsss.render.oblique_azimuth, "The kernel's mean"), which the
+    double cut had hidden; its bound moved with it (0.070 -> 0.105, the new level + 10%). Fitted on the uncut kernel
+    (stop 66, with the azimuth's second harmonic): mare_lit 0.156 / 0.184 / 0.217, band 0.063 / 0.032 / 0.110, sums
+    0.926 / 0.901 / 0.884; the far dark side's bias -0.08 in red. With the first harmonic alone and the dark pixels'
+    grids of rays
     (stop 65): mare_lit 0.162 / 0.228 / 0.238, band 0.064 / 0.039 / 0.115, sums 0.914 / 0.879 / 0.877.
     Before the grids (2026-11-29, stop 49): mare_lit
     0.162 / 0.229 / 0.255, band 0.066 / 0.041 / 0.127, sums 0.914 / 0.877 / 0.866; the far dark side's bias -0.09 in
@@ -394,18 +402,20 @@ def test_chicken1_lit_from_behind_and_its_far_dark_side():
     assert result.report["plan"]["exit_current"]
     ref, coverage, pixels = data["image"].astype(np.float64), data["coverage"].astype(np.float64), pixel_geometry(scene)
     m = compare_images(result.image, ref, pixels, coverage=coverage)
-    assert np.all(np.array(m["mare_lit"]) <= (0.172, 0.203, 0.239)), m["mare_lit"]
-    assert np.all(np.array(m["mare_band"]) <= (0.070, 0.036, 0.121)), m["mare_band"]
-    assert np.all(np.array(m["sum_ratio"]) >= (0.91, 0.89, 0.87)), m["sum_ratio"]
+    assert np.all(np.array(m["mare_lit"]) <= (0.165, 0.134, 0.188)), m["mare_lit"]
+    assert np.all(np.array(m["mare_band"]) <= (0.105, 0.019, 0.112)), m["mare_band"]
+    assert np.all(np.array(m["sum_ratio"]) >= (0.97, 0.94, 0.89)), m["sum_ratio"]
     far = error_by_cos(result.image, ref, pixels, coverage=coverage, edges=np.array([-1.0, -0.5]))[0]
-    assert far["n"] > 1000 and -0.13 < far["bias"][0] < 0.0, far
+    assert far["n"] > 1000 and -0.07 < far["bias"][0] < 0.0, far
 
 
 def test_skin1_under_a_key_and_a_rim_light_against_its_path_traced_reference():
     """The skin1 sphere under a key light on the camera's side and the back-lit scene's light behind it (the benchmark's
     reference, benchmarks/references/materials; 16384 spp, noise 2.1 / 1.2 / 1.3%): the plan sums the rim light's part
     with the exit's current, the curvature's far field corrected and the oblique beams' light ahead of their entry,
-    and the key light's apart without them. Achieved (2026-12-01, stop 66, with the azimuth's second harmonic): mare_lit
+    and the key light's apart without them. The azimuth's harmonics fitted on the kernel as rendered (stop 67): 0.030 /
+    0.024 / 0.023, band 0.046 / 0.043 / 0.047, sums 0.996 / 1.000 / 0.998. Achieved (2026-12-01, stop 66, with the
+    azimuth's second harmonic): mare_lit
     0.031 / 0.023 / 0.023, band 0.049 / 0.043 / 0.047, sums 0.994 / 1.000 / 0.998. With the first harmonic and the dark
     pixels' grids of rays (stop 65): mare_lit 0.033 / 0.024 / 0.024, band 0.053 / 0.046 / 0.048. Before the grids (2026-11-29, stop 49): mare_lit
     0.034 / 0.026 / 0.027, band 0.057 / 0.056 / 0.074, sums 0.993 / 0.999 / 0.997 (stop 48, without the azimuth:
