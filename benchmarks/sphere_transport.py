@@ -11,7 +11,12 @@ after two or more interactions is tallied
 
 - by the cosine to the light at its exit point: the exitance, W/mm^2, against the renderer's
   (:meth:`jaxsss.render.renderer.Prepared.exitance`, the node rows summed, at its shaded points: the pixels' hits),
-  the walk's interpolated at each shaded point from :data:`FINE_EDGES` and both summed per band (:data:`LIGHT_EDGES`);
+  the walk's interpolated at each shaded point from :data:`FINE_EDGES` and both summed per band (:data:`LIGHT_EDGES`).
+  Where the renderer cuts the eye's ray at a finite chord (the cut beam, ``WhiteKernel._view_kept``: a limb seen
+  through a short path inside), that factor is inside its sums, so its "exitance" there is towards the camera: on
+  chicken1's sphere lit from behind it reads 8-44% under the walk at the normal node where the kernel alone agrees
+  within 3-8% (docs/path_tracer.md, "The azimuth's harmonics on the kernel as rendered"); against Mitsuba the eye's
+  cut is right;
 - and by the cosine to the light at its *entry* (:data:`ENTRY_EDGES`): the renderer's side masks its irradiance
   samples to the same bins and sums again, so each band's error is split by the light that feeds it;
 - and by its exit direction: the first azimuthal harmonic ``A1`` of the radiance (``L ~ 1 + A1 cos phi``, ``phi``

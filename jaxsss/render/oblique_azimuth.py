@@ -41,7 +41,7 @@ entry, more of it ahead of the entry than behind. The walk's harmonics hold that
 ``a_n`` are taken with the beam as a render has it (:func:`kernel_harmonic`, chord and cut included). Until 2026-12-01
 they were taken without the chord: the factor put back only the light the uncut kernel lacked ahead, and the render
 then cut it again. At ``mu_i = 0.1`` on a sphere of 11.1 transport lengths (albedo 0.67) the rendered kernel's ``h_1``
-at 2.5-5 transport lengths was 0.20 / 0.04 / -0.12 against the walk's 0.98 / 0.90 / 0.77 (0.99 / 0.90 / 0.78 now), and
+at 2.5-5 transport lengths was 0.20 / 0.04 / -0.12 against the walk's 0.98 / 0.90 / 0.77 (1.00 / 0.90 / 0.78 now), and
 the back-lit chicken1 sphere was 0.156 / 0.184 / 0.217 per pixel against Mitsuba (0.150 / 0.122 / 0.171 now).
 
 The kernel's mean. ``G`` keeps the rendered kernel's azimuthal mean, which ``Q`` was meant to make the walk's. It does
