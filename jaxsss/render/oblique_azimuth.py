@@ -87,9 +87,10 @@ AZIMUTH_PHOTONS = 1_000_000
 AZIMUTH_MIN_COUNT = 2000
 """Photons a chord bin needs for its harmonic (a ratio of two noisy sums); beyond the last such bin ``B`` is held."""
 MEAN_FROM = 0.5
-"""Transport lengths from the entry from which ``G`` takes the walk's mean (held nearer): within half a transport
-length the shifted profile's peak sits off the entry (the far kernel's ring there is 0.35-0.9 of the walk's), and the
-near field (a disc of ``rho_0``, :meth:`jaxsss.render.bssrdf.WhiteKernel.near_terms`) holds such pairs."""
+"""Transport lengths from the entry from which the table's ``M`` (the walk's mean over the kernel's) is taken, held
+nearer: within half a transport length the shifted profile's peak sits off the entry (the far kernel's ring there is
+0.35-0.9 of the walk's), and the near field (a disc of ``rho_0``, :meth:`jaxsss.render.bssrdf.WhiteKernel.near_terms`)
+holds such pairs."""
 N_PHI = 48
 """Azimuths of the ring on which the kernel's own harmonic is taken."""
 AZIMUTH_TABLE = Path(__file__).resolve().parent / "data" / "oblique_azimuth.npz"
@@ -257,12 +258,13 @@ def fit_oblique_azimuth(sphere: np.ndarray, plane: np.ndarray) -> dict:
                 good = np.flatnonzero(np.isfinite(b1) & np.isfinite(b2))
                 known = np.flatnonzero(np.all(np.isfinite(hk), axis=0))
                 fine = np.flatnonzero(np.isfinite(mean) & (mean > 0) & (CORRECTION_D_EDGES[:-1] >= MEAN_FROM))
-                if len(good) == 0 or len(known) == 0 or len(fine) == 0:
+                if len(fine):
+                    m_all[u, j, r] = np.exp(np.interp(index, fine, np.log(mean[fine])))
+                if len(good) == 0 or len(known) == 0:
                     continue
                 # Held beyond the last bin with light; G from the kernel's harmonics there.
                 b1, b2 = np.interp(index, good, b1[good]), np.interp(index, good, b2[good])
                 hk_all = np.stack([np.interp(index, known, row[known]) for row in hk])
-                m_all[u, j, r] = np.exp(np.interp(index, fine, np.log(mean[fine])))
                 b_all[u, j, r], b2_all[u, j, r] = b1, b2
                 g_all[u, j, r] = 1.0 / (1.0 + (hk_all[0] * b1 + hk_all[1] * b2) / 2.0)
                 h_walk[u, j, r], h_kernel[u, j, r] = hw, hk
