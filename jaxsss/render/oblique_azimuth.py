@@ -134,9 +134,8 @@ def _beam_sources(kernel, mus: tuple, mu_i: float, radius: float | None):
     travel = truncated_travel(jnp.array([[chord]]), jnp.ones(1))  # (1, 1, 1)
     flux = incident_flux(*args, jnp.ones((1, 1, 1)), tangent=jnp.array([[[sin_t, 0.0, 0.0]]]), tangent_weight=travel)
     if kernel.passage is not None:
-        finite = bool(np.isfinite(chord))
-        rows = [incident_flux(*args, jnp.full((1, 1, 1), float(finite) * (chord if finite else 0.0) ** p))
-                for p in (0, 1)]
+        # The flux of a column with a finite chord and times that chord (none on the plane).
+        rows = [incident_flux(*args, jnp.full((1, 1, 1), chord**p if np.isfinite(chord) else 0.0)) for p in (0, 1)]
         flux = jnp.concatenate([flux] + [row[:, None] for row in rows], axis=1)
     return kernel.sources(flux)
 
