@@ -119,7 +119,8 @@ from jaxsss.render.curvature import (KAPPA_MAX_ZR, N_KAPPA, curvature_coordinate
                                      pair_curvature)
 from jaxsss.render.exit_direction import anisotropic_exit_distribution
 
-__all__ = ["BSSRDFS", "GRID_PER_DECADE", "OBLIQUE_MUS", "PURE_ABSORBER_SCATTERING", "WhiteKernel", "albedo_correction",
+__all__ = ["BSSRDFS", "GRID_PER_DECADE", "KERNEL_MUS", "LIGHTS_BEHIND_MUS", "OBLIQUE_MUS", "PURE_ABSORBER_SCATTERING",
+           "WhiteKernel", "albedo_correction",
            "chandrasekhar_h",
            "choose_bssrdf", "current_radiance", "directional_albedo", "exit_distribution", "exit_radiance_nodes",
            "exit_weights",
@@ -138,6 +139,12 @@ KERNEL_MUS = (0.5, 0.1)
 """The oblique nodes the ``white-oblique`` kernel uses (each costs one profile per pair and channel). Two are enough:
 against the skin1 reference all four gave mare_lit 0.061 / 0.045 / 0.043 and sums 0.960 / 0.981 / 0.995 in 11.7 s
 (compile 103 s), these two 0.057 / 0.043 / 0.044 and 0.966 / 0.991 / 1.008 in 3.1 s (compile 42 s); docs/path_tracer.md."""
+LIGHTS_BEHIND_MUS = (0.75, 0.5, 0.1)
+"""The oblique nodes of the index-matched kernel that sums the light of lights behind the object (the plan's exit
+current, :mod:`jaxsss.render.exit_current`): a third node at 0.75. There the light that crosses the object lights its
+far side, and the hat mix of the 0.5 and normal nodes put light entering between them at two places on the far side
+instead of one: on chicken1's back-lit sphere light entering at 0.73-0.77 reached the far side at 0.57-0.79 of the
+sphere walk's (docs/path_tracer.md, "A node at 0.75 for lights behind")."""
 SHIFT_ALBEDO = (0.3, 0.5, 0.7, 0.8, 0.9, 0.97, 0.99)
 SHIFT_RATIO = ((0.577, 0.660, 0.775, 0.898),
                (0.555, 0.637, 0.758, 0.880),
@@ -657,8 +664,8 @@ class WhiteKernel(eqx.Module):
     # (:func:`white_kernel`).
     curvature: tuple | None = None
     # The cut-beam passage (None: off): the loss table's cells (K, T - 1, X - 1, C, 8) (jaxsss.render.passage.
-    # passage_cells), sigma_t' (C,) and the floor of the chord (mm); the flux then carries two more rows, the flux of
-    # light columns with a finite chord W_k and W_k t.
+    # passage_cells), sigma_t' (C,), the floor of the chord (mm) and the kernel's nodes mu_k (K,); the flux then
+    # carries two more rows, the flux of light columns with a finite chord W_k and W_k t.
     passage: tuple | None = None
     # The exit by distance (None: off): sigma_t' (C,) and the amplitude table c (K, D, C); the sums then carry 2K
     # nodes, each node's exitance then its exitance weighted by c(d) (jaxsss.render.exit_distance).
@@ -845,7 +852,7 @@ class WhiteKernel(eqx.Module):
         (:func:`jaxsss.render.passage.passage_loss`)."""
         from jaxsss.render.passage import passage_loss
 
-        table, sigma_t_prime, floor = self.passage
+        table, sigma_t_prime, floor, _ = self.passage
         share, chord = sources[:, 4], sources[:, 5]
         d = jnp.sqrt(jnp.maximum(jnp.sum(delta * delta, axis=-1), 1e-300))[:, None, None]
         # The step at d = t is resolved no finer than the samples: the chord is floored at ``floor`` for x.
@@ -877,23 +884,21 @@ class WhiteKernel(eqx.Module):
         without the passage."""
         if self.passage is None or normals is None or normals[0].shape[-1] != 7:
             return 1.0
-        from jaxsss.render.passage import PASSAGE_MUS, passage_loss
+        from jaxsss.render.passage import passage_loss
 
-        table, sigma_t_prime, floor = self.passage
-        if table.shape[0] != len(PASSAGE_MUS):
-            return 1.0
+        table, sigma_t_prime, floor, nodes = self.passage
         chord, tangent = normals[0][:, 3], normals[0][:, 4:7]
         d = jnp.sqrt(jnp.maximum(jnp.sum(delta * delta, axis=-1), 1e-300))
         mu = jnp.sqrt(jnp.clip(1.0 - jnp.sum(tangent * tangent, axis=-1), 0.0, 1.0))
-        shape = (d.shape[0], len(PASSAGE_MUS), sigma_t_prime.shape[0])
+        shape = (d.shape[0], nodes.shape[0], sigma_t_prime.shape[0])
         x = jnp.broadcast_to((d / jnp.maximum(chord, floor))[:, None, None], shape)
         tau = jnp.broadcast_to(chord[:, None, None] * sigma_t_prime, shape)
         # The azimuthal mean of the table (ahead 1/2): the half-plane split is the plane's, and at a sphere's limb
         # the entries lie behind the reversed view ray where the plane loses little (chicken1's red 0.088 per pixel
         # with the split, 0.079 with the mean, which is what the sphere walk checked; docs/path_tracer.md).
-        loss = passage_loss(table, tau, x, 0.5)  # (P, 3, C)
-        # Linear in the refracted view cosine between the table's nodes.
-        h = hat_weights(mu, PASSAGE_MUS)  # (P, 3)
+        loss = passage_loss(table, tau, x, 0.5)  # (P, K, C)
+        # Linear in the refracted view cosine between the kernel's nodes.
+        h = hat_weights(mu, nodes)  # (P, K)
         return 1.0 - jnp.sum(h[:, :, None] * loss, axis=1, keepdims=True)
 
     def _azimuth(self, delta, sources, normals):
@@ -1083,7 +1088,7 @@ def white_kernel(medium: Medium, sources: WhiteSources, mus: tuple = (1.0,) + KE
         albedo = jnp.broadcast_to(medium.alpha_prime, c)
         kernel = eqx.tree_at(lambda k: k.passage, kernel,
                              (passage_cells(passage_loss_table(albedo, mus)), sigma_t_prime,
-                              jnp.asarray(passage, sigma_t_prime.dtype)),
+                              jnp.asarray(passage, sigma_t_prime.dtype), jnp.asarray(mus, sigma_t_prime.dtype)),
                              is_leaf=lambda x: x is None)
     if exit_split:
         from jaxsss.render.exit_distance import distance_amplitude

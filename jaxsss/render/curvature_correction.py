@@ -50,8 +50,10 @@ __all__ = ["CORRECTION_ALBEDO", "CORRECTION_D", "CORRECTION_D_EDGES", "CORRECTIO
            "CORRECTION_RADII", "KAPPA_MAX_MARCHED", "fit_curvature_correction", "generate_curvature_correction",
            "load_curvature_correction", "log_correction_table"]
 
-CORRECTION_MUS = (1.0, 0.5, 0.1)
-"""Incidence cosines of the table: the white-oblique kernel's nodes (1 and :data:`jaxsss.render.bssrdf.KERNEL_MUS`)."""
+CORRECTION_MUS = (1.0, 0.75, 0.5, 0.1)
+"""Incidence cosines of the table: the white-oblique kernel's nodes (1 and :data:`jaxsss.render.bssrdf.KERNEL_MUS`)
+and 0.75, the lights-behind kernel's (:data:`jaxsss.render.bssrdf.LIGHTS_BEHIND_MUS`); descending (the lookups take
+the shipped table's own ``mus``)."""
 CORRECTION_ALBEDO = (0.3, 0.6, 0.8, 0.9, 0.97, 0.995)
 """Single-scattering albedos of the table (linear between, held beyond the ends)."""
 CORRECTION_RADII = tuple(round(3.3 * 1.224**k, 2) for k in range(10, -1, -1))
@@ -116,11 +118,11 @@ def renderer_model(mu_i: float, albedo: float, radius: float, d=None, eta: float
 
 
 def fit_curvature_correction(sphere: np.ndarray, plane: np.ndarray, eta: float = 1.0,
-                             radii: tuple = CORRECTION_RADII) -> np.ndarray:
-    """``log Q`` ``(U, A, 1 + R, D)`` from the walks' tallies, ``sphere`` ``(U, A, R, 2, D)`` over ``radii`` (default
-    :data:`CORRECTION_RADII`) and ``plane`` ``(U, A, 2, D)`` (light, photons): the walk's gain over the renderer's
-    model (:func:`renderer_model`) per chord bin, 0 on the plane; held beyond the last bin with
-    :data:`CORRECTION_MIN_COUNT` photons in both walks.
+                             radii: tuple = CORRECTION_RADII, mus=CORRECTION_MUS) -> np.ndarray:
+    """``log Q`` ``(U, A, 1 + R, D)`` from the walks' tallies at the incidence nodes ``mus``, ``sphere`` ``(U, A, R, 2,
+    D)`` over ``radii`` (default :data:`CORRECTION_RADII`) and ``plane`` ``(U, A, 2, D)`` (light, photons): the walk's
+    gain over the renderer's model (:func:`renderer_model`) per chord bin, 0 on the plane; held beyond the last bin
+    with :data:`CORRECTION_MIN_COUNT` photons in both walks.
 
     The bin that holds the antipode (``d0 < 2 a < d1``) is kept: on the sphere it covers the area ``pi (4 a^2 -
     d0^2)`` (Archimedes), on the plane ``pi (d1^2 - d0^2)``, and the model is taken at its mean chord ``(d0 + 2 a) /
@@ -131,7 +133,7 @@ def fit_curvature_correction(sphere: np.ndarray, plane: np.ndarray, eta: float =
     n_u, n_a, n_r, _, n_d = sphere.shape
     e0, e1 = CORRECTION_D_EDGES[:-1], CORRECTION_D_EDGES[1:]
     log_q = np.zeros((n_u, n_a, n_r + 1, n_d))
-    for k, mu in enumerate(CORRECTION_MUS):
+    for k, mu in enumerate(float(m) for m in mus):
         for j, albedo in enumerate(CORRECTION_ALBEDO):
             p = plane[k, j]
             for r, radius in enumerate(radii):
@@ -150,16 +152,19 @@ def fit_curvature_correction(sphere: np.ndarray, plane: np.ndarray, eta: float =
     return log_q
 
 
-def generate_curvature_correction(photons: int = CORRECTION_PHOTONS, seed: int = 47, progress: bool = True) -> dict:
-    """Run the walks (:data:`CORRECTION_MUS` x :data:`CORRECTION_ALBEDO`, each on a half-space and the spheres of
-    :data:`CORRECTION_RADII`) and return the table: ``log_q``, the tallies and metadata."""
+def generate_curvature_correction(photons: int = CORRECTION_PHOTONS, seed: int = 47, progress: bool = True,
+                                  mus=CORRECTION_MUS) -> dict:
+    """Run the walks (``mus``, default :data:`CORRECTION_MUS`, x :data:`CORRECTION_ALBEDO`, each on a half-space and
+    the spheres of :data:`CORRECTION_RADII`; seeds by each node's slot among :data:`CORRECTION_MUS`) and return the
+    table: ``log_q``, the tallies and metadata."""
     from jaxsss.render.walk import sphere_and_plane_tallies
 
     t0 = time.perf_counter()
-    sphere, plane = sphere_and_plane_tallies(_tally, CORRECTION_MUS, CORRECTION_ALBEDO, CORRECTION_RADII, photons,
-                                             seed, "curvature correction", progress)
-    return {"log_q": fit_curvature_correction(sphere, plane), "sphere": sphere, "plane": plane,
-            "mus": np.asarray(CORRECTION_MUS), "albedo": np.asarray(CORRECTION_ALBEDO),
+    mus = tuple(float(m) for m in mus)
+    sphere, plane = sphere_and_plane_tallies(_tally, mus, CORRECTION_ALBEDO, CORRECTION_RADII, photons, seed,
+                                             "curvature correction", progress, table_mus=CORRECTION_MUS)
+    return {"log_q": fit_curvature_correction(sphere, plane, mus=mus), "sphere": sphere, "plane": plane,
+            "mus": np.asarray(mus), "albedo": np.asarray(CORRECTION_ALBEDO),
             "radii": np.asarray(CORRECTION_RADII), "kappa": np.asarray(CORRECTION_KAPPA),
             "d": np.asarray(CORRECTION_D), "d_edges": CORRECTION_D_EDGES, "photons": photons, "seed": seed,
             "seconds": time.perf_counter() - t0,
@@ -173,17 +178,19 @@ def load_curvature_correction() -> dict:
     return load_table(CORRECTION_TABLE)
 
 
-def log_correction_table(r_lu, kappa_lu, mus, albedo, log_q=None, kappa=CORRECTION_KAPPA):
+def log_correction_table(r_lu, kappa_lu, mus, albedo, log_q=None, kappa=CORRECTION_KAPPA, table_mus=None):
     """``(K, G, N, C)``: ``log Q`` at the distances ``r_lu`` ``(G, C)`` and curvatures ``kappa_lu`` ``(G, N, C)``
     (both in units of ``l_u``), for the incidence nodes ``mus`` (each one of :data:`CORRECTION_MUS`) and albedos
     ``(C,)``: linear in the albedo, bilinear in (``kappa l_u``, ``d / l_u``) on the table's nodes, held beyond them.
     Differentiable in ``albedo`` and the coordinates. ``log_q``: another table (default the shipped index-matched
-    one; :mod:`jaxsss.render.dielectric_correction`) on the curvature nodes ``kappa``, the same elsewhere."""
+    one; :mod:`jaxsss.render.dielectric_correction`) on the curvature nodes ``kappa`` and incidence nodes ``table_mus``,
+    the same elsewhere."""
     from jaxsss.render.exit_distance import node_rows
     from jaxsss.render.passage import piecewise_linear
 
-    log_q = load_curvature_correction()["log_q"] if log_q is None else log_q
-    rows = node_rows(log_q, CORRECTION_MUS, CORRECTION_ALBEDO, mus, albedo,
+    if log_q is None:
+        log_q, table_mus = load_curvature_correction()["log_q"], tuple(load_curvature_correction()["mus"])
+    rows = node_rows(log_q, table_mus, CORRECTION_ALBEDO, mus, albedo,
                      "curvature_correction (transport-corrected curvature ratio)")  # (K, C, Nk, D)
     # Linear in d / l_u at every curvature node: (G, K, C, Nk) -> (Nk, G, 1, K, C).
     by_d = piecewise_linear(r_lu[:, None, :, None], CORRECTION_D, jnp.moveaxis(rows, 3, 0))
@@ -201,8 +208,8 @@ def main(argv=None) -> int:
         description="The transport correction of the curvature ratio of the white kernels' orders >= 2 "
                     "(jaxsss.render.curvature_correction).",
         photons_help="photons per walk (6 spheres and a half-space per node)", load=load_curvature_correction,
-        refit=lambda tab: {"log_q": fit_curvature_correction(tab["sphere"], tab["plane"])},
-        generate=generate_curvature_correction,
+        refit=lambda tab: {"log_q": fit_curvature_correction(tab["sphere"], tab["plane"], mus=tuple(tab["mus"]))},
+        generate=generate_curvature_correction, node_keys=("log_q", "sphere", "plane"),
         describe=lambda tab: (f"log Q {tab['log_q'].shape} (mu_i, albedo, kappa l_u, d / l_u); "
                               f"{int(tab['photons'])} photons per walk, {float(tab['seconds']):.0f} s"))
 

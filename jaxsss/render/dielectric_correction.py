@@ -42,19 +42,23 @@ from jaxsss.render.curvature_correction import (
     CORRECTION_ALBEDO,
     CORRECTION_D,
     CORRECTION_D_EDGES,
-    CORRECTION_MUS,
     CORRECTION_RADII,
     _tally,
     fit_curvature_correction,
 )
 
-__all__ = ["DIELECTRIC_ETAS", "DIELECTRIC_KAPPA", "DIELECTRIC_PHOTONS", "DIELECTRIC_RADII", "DIELECTRIC_TABLE",
+__all__ = ["DIELECTRIC_ETAS", "DIELECTRIC_KAPPA", "DIELECTRIC_MUS", "DIELECTRIC_PHOTONS", "DIELECTRIC_RADII",
+           "DIELECTRIC_TABLE",
            "KAPPA_MAX_DIELECTRIC", "dielectric_log_correction_table", "generate_dielectric_correction",
            "load_dielectric_correction", "tally_eta"]
 
 DIELECTRIC_ETAS = (1.1, 1.2, 1.3, 1.4, 1.5, 1.6)
 """Relative indices of the table, over the white Monte Carlo family's range (water 1.33, skin 1.4, wax and marble
 1.44-1.5). Linear between them, held beyond (1.0-1.1 takes the first node)."""
+DIELECTRIC_MUS = (1.0, 0.5, 0.1)
+"""Incidence nodes of the dielectric tables (and of :mod:`jaxsss.render.dielectric_current`'s): the white-oblique
+kernel's (1 and :data:`jaxsss.render.bssrdf.KERNEL_MUS`); the index-matched tables' node at 0.75 for lights behind
+(:data:`jaxsss.render.bssrdf.LIGHTS_BEHIND_MUS`) has no dielectric walks yet."""
 DIELECTRIC_PHOTONS = 200_000
 """Photons per walk: a fifth of the index-matched table's (every walk crosses a Fresnel boundary and is reflected
 40-60% of the time, so a walk costs 2-3x as much; 12 minutes per ``eta`` on one core); the near part that is used sits
@@ -76,10 +80,10 @@ def tally_eta(eta: float, photons: int = DIELECTRIC_PHOTONS, seed: int = 47, pro
     from jaxsss.render.walk import sphere_and_plane_tallies
 
     tally = functools.partial(_tally, eta=float(eta), min_order=1)
-    sphere, plane = sphere_and_plane_tallies(tally, CORRECTION_MUS, CORRECTION_ALBEDO, DIELECTRIC_RADII, photons, seed,
+    sphere, plane = sphere_and_plane_tallies(tally, DIELECTRIC_MUS, CORRECTION_ALBEDO, DIELECTRIC_RADII, photons, seed,
                                              f"dielectric curvature correction, eta {eta:g}", progress)
     return {"sphere": sphere, "plane": plane,
-            "log_q": fit_curvature_correction(sphere, plane, float(eta), DIELECTRIC_RADII)}
+            "log_q": fit_curvature_correction(sphere, plane, float(eta), DIELECTRIC_RADII, DIELECTRIC_MUS)}
 
 
 def generate_dielectric_correction(photons: int = DIELECTRIC_PHOTONS, seed: int = 47, progress: bool = True) -> dict:
@@ -87,7 +91,7 @@ def generate_dielectric_correction(photons: int = DIELECTRIC_PHOTONS, seed: int 
     t0 = time.perf_counter()
     parts = [tally_eta(eta, photons, seed, progress) for eta in DIELECTRIC_ETAS]
     return {**{k: np.stack([p[k] for p in parts]) for k in ("log_q", "sphere", "plane")},
-            "eta": np.asarray(DIELECTRIC_ETAS), "mus": np.asarray(CORRECTION_MUS),
+            "eta": np.asarray(DIELECTRIC_ETAS), "mus": np.asarray(DIELECTRIC_MUS),
             "albedo": np.asarray(CORRECTION_ALBEDO), "radii": np.asarray(DIELECTRIC_RADII),
             "kappa": np.asarray(DIELECTRIC_KAPPA), "d": np.asarray(CORRECTION_D), "d_edges": CORRECTION_D_EDGES,
             "photons": photons, "seed": seed, "seconds": time.perf_counter() - t0,
@@ -112,7 +116,8 @@ def dielectric_log_correction_table(r_lu, kappa_lu, mus, albedo, eta: float):
     lo = int(np.floor(w))
     hi, t = min(lo + 1, len(tab["eta"]) - 1), w - lo
     log_q = (1.0 - t) * tab["log_q"][lo] + t * tab["log_q"][hi]
-    return log_correction_table(r_lu, kappa_lu, mus, albedo, log_q=log_q, kappa=DIELECTRIC_KAPPA)
+    return log_correction_table(r_lu, kappa_lu, mus, albedo, log_q=log_q, kappa=DIELECTRIC_KAPPA,
+                                table_mus=tuple(tab["mus"]))
 
 
 def main(argv=None) -> int:
@@ -125,7 +130,8 @@ def main(argv=None) -> int:
                     "(jaxsss.render.dielectric_correction).",
         photons_help="photons per walk (15 spheres and a half-space per node and eta)",
         load=load_dielectric_correction,
-        refit=lambda tab: {"log_q": np.stack([fit_curvature_correction(s, p, float(e), DIELECTRIC_RADII)
+        refit=lambda tab: {"log_q": np.stack([fit_curvature_correction(s, p, float(e), DIELECTRIC_RADII,
+                                                                       tuple(tab["mus"]))
                                               for s, p, e in zip(tab["sphere"], tab["plane"], tab["eta"])])},
         generate=generate_dielectric_correction,
         describe=lambda tab: (f"log Q {tab['log_q'].shape} (eta, mu_i, albedo, kappa l_u, d / l_u); "

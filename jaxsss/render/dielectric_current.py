@@ -46,26 +46,27 @@ def generate_dielectric_current_table(photons: int | None = None, seed: int = 53
     at every :data:`jaxsss.render.dielectric_correction.DIELECTRIC_ETAS` (the same seeds at every ``eta``: common
     random numbers): ``ab`` ``(E, U, A, D, 2)``, ``psi`` ``(E, U, A, B)``, the tallies ``(E, U, A, 4, D, B)`` and
     metadata. ``photons`` per walk (None: :data:`jaxsss.render.exit_current.CURRENT_PHOTONS`)."""
-    from jaxsss.render.dielectric_correction import DIELECTRIC_ETAS
+    from jaxsss.render.dielectric_correction import DIELECTRIC_ETAS, DIELECTRIC_MUS
     from jaxsss.render.exit_current import CURRENT_PHOTONS, generate_exit_current_table
 
     photons = CURRENT_PHOTONS if photons is None else photons
     t0 = time.perf_counter()
-    parts = [generate_exit_current_table(photons, seed, progress, eta) for eta in DIELECTRIC_ETAS]
-    return {**_fit(np.stack([p["tallies"] for p in parts])),
+    parts = [generate_exit_current_table(photons, seed, progress, eta, table_mus=DIELECTRIC_MUS)
+             for eta in DIELECTRIC_ETAS]
+    return {**_fit(np.stack([p["tallies"] for p in parts]), DIELECTRIC_MUS),
             **{k: parts[0][k] for k in ("mus", "albedo", "d", "d_edges", "mu_edges", "photons", "seed")},
             "eta": np.asarray(DIELECTRIC_ETAS), "seconds": time.perf_counter() - t0,
             "source": "jaxsss.render.walk.pencil_beam_walk(eta): isotropic half-space behind a smooth dielectric "
                       "boundary, orders >= 1, exit cosines outside"}
 
 
-def _fit(tallies: np.ndarray) -> dict:
+def _fit(tallies: np.ndarray, mus) -> dict:
     """``{"ab", "psi", "tallies"}``: the tallies ``(E, U, A, 4, D, B)`` kept in float32 (half the table's size), and
     :func:`jaxsss.render.exit_current.fit_exit_current` per ``eta`` from those, so that ``--refit`` gives them back."""
     from jaxsss.render.exit_current import fit_exit_current
 
     tallies = np.asarray(tallies, np.float32)
-    fits = [fit_exit_current(t.astype(np.float64)) for t in tallies]
+    fits = [fit_exit_current(t.astype(np.float64), mus) for t in tallies]
     return {"ab": np.stack([f[0] for f in fits]), "psi": np.stack([f[1] for f in fits]), "tallies": tallies}
 
 
@@ -86,7 +87,7 @@ def main(argv=None) -> int:
         description="The azimuthal (current) term of the white kernels' exit behind a smooth dielectric boundary, "
                     "every order (jaxsss.render.dielectric_current).",
         photons_help="photons per (eta, incidence, albedo) walk", load=load_dielectric_current_table,
-        refit=lambda tab: _fit(tab["tallies"]),
+        refit=lambda tab: _fit(tab["tallies"], tuple(tab["mus"])),
         generate=generate_dielectric_current_table,
         describe=lambda tab: (f"a, b {tab['ab'].shape} (eta, mu_i, albedo, d / l_u, a|b), psi {tab['psi'].shape} "
                               f"(eta, mu_i, albedo, mu_o bin outside) at eta {tab['eta'].tolist()}; "

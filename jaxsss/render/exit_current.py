@@ -54,8 +54,10 @@ __all__ = ["CURRENT_ALBEDO", "CURRENT_D", "CURRENT_D_EDGES", "CURRENT_MU_EDGES",
            "current_amplitude_at", "current_exit_distribution", "fit_exit_current", "generate_exit_current_table",
            "load_exit_current_table", "tangential_unit"]
 
-CURRENT_MUS = (1.0, 0.5, 0.1)
-"""Incidence cosines of the table: the white-oblique kernel's nodes (1 and :data:`jaxsss.render.bssrdf.KERNEL_MUS`)."""
+CURRENT_MUS = (1.0, 0.75, 0.5, 0.1)
+"""Incidence cosines of the table: the white-oblique kernel's nodes (1 and :data:`jaxsss.render.bssrdf.KERNEL_MUS`)
+and 0.75, the lights-behind kernel's (:data:`jaxsss.render.bssrdf.LIGHTS_BEHIND_MUS`); descending (the lookups take
+the shipped table's own ``mus``)."""
 CURRENT_ALBEDO = (0.3, 0.6, 0.8, 0.9, 0.97, 0.995)
 """Single-scattering albedos of the table (linear between, held beyond the ends)."""
 CURRENT_D_EDGES = np.array([0.0, 0.25, 0.5, 0.75, 1.0, 1.5, 2.0, 3.0, 4.0, 6.0, 8.0, 12.0, 16.0, 24.0, 50.0])
@@ -95,8 +97,9 @@ def _tally(albedo: float, mu_i: float, photons: int, seed: int, eta: float = 1.0
     return h / photons
 
 
-def fit_exit_current(tallies: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """``(ab (U, A, D, 2), psi (U, A, B))`` from the walks' ``tallies`` ``(U, A, 4, D, B)``. Per bin, the radiance's
+def fit_exit_current(tallies: np.ndarray, mus=CURRENT_MUS) -> tuple[np.ndarray, np.ndarray]:
+    """``(ab (U, A, D, 2), psi (U, A, B))`` from the walks' ``tallies`` ``(U, A, 4, D, B)`` at the incidence nodes
+    ``mus``. Per bin, the radiance's
     first harmonic as a vector ``c = a u + b t`` (``L ~ 1 + c . e``, so ``<e> = c / 2``), ``(a, b)`` by least squares
     over the bin's photons: ``[[W, W_ut], [W_ut, W]] (a, b) = 2 (W_eu, W_et)``. Then ``(a, b)(d, mu_o) ~ (a(d),
     b(d)) psi(mu_o)`` (rank 1 over both, each bin weighted by its light); ``psi`` scaled to 1 at its largest, ``a``
@@ -109,7 +112,7 @@ def fit_exit_current(tallies: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
             det = np.maximum(light * light - ut * ut, 1e-300)
             a = 2.0 * (light * eu - ut * et) / det
             b = 2.0 * (light * et - ut * eu) / det
-            if CURRENT_MUS[k] == 1.0:
+            if float(mus[k]) == 1.0:
                 b = np.zeros_like(b)
             w = np.sqrt(light / light.sum())
             stacked = np.concatenate([a * w, b * w])  # (2D, B)
@@ -127,20 +130,23 @@ def fit_exit_current(tallies: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
 
 
 def generate_exit_current_table(photons: int = CURRENT_PHOTONS, seed: int = 53, progress: bool = True,
-                                eta: float = 1.0) -> dict:
-    """Run the half-space walks (:data:`CURRENT_MUS` x :data:`CURRENT_ALBEDO`) at relative index ``eta`` and return
-    the table: ``a``, ``psi``, the tallies and metadata."""
+                                eta: float = 1.0, mus=None, table_mus=CURRENT_MUS) -> dict:
+    """Run the half-space walks (``mus``, default ``table_mus``, x :data:`CURRENT_ALBEDO`) at relative index ``eta``
+    and return the table: ``a``, ``psi``, the tallies and metadata. Seeds ``seed + 100 k + j``, ``k`` the node's
+    :func:`jaxsss.render.walk.seed_slot` among ``table_mus``."""
+    from jaxsss.render.walk import seed_slot
+
     from tqdm.auto import tqdm
 
     t0 = time.perf_counter()
-    tallies = np.zeros((len(CURRENT_MUS), len(CURRENT_ALBEDO), 4, len(CURRENT_D_EDGES) - 1,
-                        len(CURRENT_MU_EDGES) - 1))
-    nodes = [(k, j) for k in range(len(CURRENT_MUS)) for j in range(len(CURRENT_ALBEDO))]
+    mus = tuple(table_mus if mus is None else mus)
+    tallies = np.zeros((len(mus), len(CURRENT_ALBEDO), 4, len(CURRENT_D_EDGES) - 1, len(CURRENT_MU_EDGES) - 1))
+    nodes = [(k, j) for k in range(len(mus)) for j in range(len(CURRENT_ALBEDO))]
     for k, j in tqdm(nodes, desc=f"exit current, eta {eta:g}", disable=not progress):
-        tallies[k, j] = _tally(CURRENT_ALBEDO[j], CURRENT_MUS[k], photons, seed + 100 * k + j, eta)
-    amp, shape = fit_exit_current(tallies)
+        tallies[k, j] = _tally(CURRENT_ALBEDO[j], mus[k], photons, seed + 100 * seed_slot(mus[k], table_mus) + j, eta)
+    amp, shape = fit_exit_current(tallies, mus)
     orders = "orders >= 2" if eta == 1.0 else f"smooth dielectric boundary eta {eta:g}, orders >= 1"
-    return {"ab": amp, "psi": shape, "tallies": tallies, "mus": np.asarray(CURRENT_MUS),
+    return {"ab": amp, "psi": shape, "tallies": tallies, "mus": np.asarray(mus),
             "albedo": np.asarray(CURRENT_ALBEDO), "d": np.asarray(CURRENT_D), "d_edges": CURRENT_D_EDGES,
             "mu_edges": CURRENT_MU_EDGES, "photons": photons, "seed": seed, "seconds": time.perf_counter() - t0,
             "source": f"jaxsss.render.walk.pencil_beam_walk: isotropic half-space, {orders}"}
@@ -174,8 +180,11 @@ def _node_rows(name: str, mus, albedo, eta=None):
     in the albedos ``(C,)``."""
     from jaxsss.render.exit_distance import node_rows
 
+    from jaxsss.render.dielectric_current import load_dielectric_current_table
+
     table = _table(name, eta, jnp.result_type(albedo, 0.0))
-    return node_rows(table, CURRENT_MUS, CURRENT_ALBEDO, mus, albedo, "exit_current (the exit's current)")
+    nodes = (load_exit_current_table() if eta is None else load_dielectric_current_table())["mus"]
+    return node_rows(table, tuple(nodes), CURRENT_ALBEDO, mus, albedo, "exit_current (the exit's current)")
 
 
 def current_amplitude(albedo, eta=None) -> jnp.ndarray:
@@ -233,8 +242,8 @@ def main(argv=None) -> int:
         description="The azimuthal (current) term of the white kernels' exit, orders >= 2 "
                     "(jaxsss.render.exit_current).",
         photons_help="photons per (incidence, albedo) node", load=load_exit_current_table,
-        refit=lambda tab: dict(zip(("ab", "psi"), fit_exit_current(tab["tallies"]))),
-        generate=generate_exit_current_table,
+        refit=lambda tab: dict(zip(("ab", "psi"), fit_exit_current(tab["tallies"], tuple(tab["mus"])))),
+        generate=generate_exit_current_table, node_keys=("ab", "psi", "tallies"),
         describe=lambda tab: (f"a, b {tab['ab'].shape} (mu_i, albedo, d / l_u, a|b), psi {tab['psi'].shape} "
                               f"(mu_i, albedo, mu_o bin); {int(tab['photons'])} photons per walk, "
                               f"{float(tab['seconds']):.0f} s"))

@@ -32,7 +32,6 @@ disc as wide as chicken1's red one (2.3 ``l_u``) leaves out.
 
 from __future__ import annotations
 
-import argparse
 import functools
 import sys
 import time
@@ -45,8 +44,10 @@ __all__ = ["CELL_D", "CELL_KAPPA", "CURVED_ALBEDO", "CURVED_D", "CURVED_KAPPA", 
            "curved_amplitude_at", "curved_amplitude_cells", "curved_exit_distribution", "fit_exit_curvature",
            "generate_exit_curvature_table", "load_exit_curvature_table"]
 
-CURVED_MUS = (1.0, 0.5, 0.1)
-"""Incidence cosines of the table: the white-oblique kernel's nodes (1 and :data:`jaxsss.render.bssrdf.KERNEL_MUS`)."""
+CURVED_MUS = (1.0, 0.75, 0.5, 0.1)
+"""Incidence cosines of the table: the white-oblique kernel's nodes (1 and :data:`jaxsss.render.bssrdf.KERNEL_MUS`)
+and 0.75, the lights-behind kernel's (:data:`jaxsss.render.bssrdf.LIGHTS_BEHIND_MUS`); descending (the lookups take
+the shipped table's own ``mus``)."""
 CURVED_ALBEDO = (0.3, 0.6, 0.8, 0.9, 0.97)
 """Single-scattering albedos of the table (linear between, held beyond the ends)."""
 CURVED_RADII = (25.0, 16.0, 11.0, 7.5, 5.0, 3.3)
@@ -80,13 +81,14 @@ def _histogram(albedo: float, mu_i: float, radius: float | None, photons: int, s
     return h / photons
 
 
-def fit_exit_curvature(sphere: np.ndarray, plane: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """``(c (U, A, R + 1, D), phi (U, A, B))`` from the walks' tallies: ``sphere`` ``(U, A, R, D, B)`` over
-    :data:`CURVED_RADII` and ``plane`` ``(U, A, D, B)``. Per incidence and albedo, the light-weighted rank-1 fit of
-    the bins' ratios ``q - 1 ~ c phi`` (``q``: a sphere's exit distribution in a distance bin over the plane's in the
-    same bin); ``phi`` orthogonal to ``X_2 2 mu`` (:func:`jaxsss.render.bssrdf.multiple_exit_distribution`), unit
-    RMS, signed so that far light leaves less grazing (``c > 0``); ``c = 0`` at ``kappa = 0``, held beyond the last
-    bin with light and clipped so that ``1 + c phi >= 0.05`` in every bin."""
+def fit_exit_curvature(sphere: np.ndarray, plane: np.ndarray, mus=CURVED_MUS) -> tuple[np.ndarray, np.ndarray]:
+    """``(c (U, A, R + 1, D), phi (U, A, B))`` from the walks' tallies at the incidence nodes ``mus``: ``sphere``
+    ``(U, A, R, D, B)`` over :data:`CURVED_RADII` and ``plane`` ``(U, A, D, B)``. Per incidence and albedo, the
+    light-weighted rank-1 fit of the bins' ratios ``q - 1 ~ c phi`` (``q``: a sphere's exit distribution in a distance
+    bin over the plane's in the same bin); ``phi`` orthogonal to ``X_2 2 mu``
+    (:func:`jaxsss.render.bssrdf.multiple_exit_distribution`), unit RMS, signed so that far light leaves less grazing
+    (``c > 0``); ``c = 0`` at ``kappa = 0``, held beyond the last bin with light and clipped so that ``1 + c phi >=
+    0.05`` in every bin."""
     from jaxsss.render.bssrdf import multiple_exit_distribution
 
     mu = 0.5 * (CURVED_MU_EDGES[1:] + CURVED_MU_EDGES[:-1])
@@ -110,7 +112,7 @@ def fit_exit_curvature(sphere: np.ndarray, plane: np.ndarray) -> tuple[np.ndarra
             w = np.sqrt(light / light.sum())
             phi = np.linalg.svd(q * w[:, None], full_matrices=False)[2][0]
             # No change of the exitance: int X_2 phi 2 mu dmu = 0.
-            x = np.asarray(multiple_exit_distribution(mu, np.array([CURVED_MUS[k]]),
+            x = np.asarray(multiple_exit_distribution(mu, np.array([float(mus[k])]),
                                                       np.array([CURVED_ALBEDO[j]])))[:, 0, 0]
             weight = x * 2.0 * mu
             phi = phi - weight @ phi / (weight @ weight) * weight
@@ -133,24 +135,29 @@ def fit_exit_curvature(sphere: np.ndarray, plane: np.ndarray) -> tuple[np.ndarra
     return amp, shape
 
 
-def generate_exit_curvature_table(photons: int = CURVED_PHOTONS, seed: int = 31, progress: bool = True) -> dict:
-    """Run the walks (:data:`CURVED_MUS` x :data:`CURVED_ALBEDO`, each on a half-space and the spheres of
-    :data:`CURVED_RADII`) and return the table: ``c`` ``(U, A, len(CURVED_KAPPA), D)``, ``phi`` ``(U, A, B)``, the
-    tallies and metadata."""
+def generate_exit_curvature_table(photons: int = CURVED_PHOTONS, seed: int = 31, progress: bool = True,
+                                  mus=CURVED_MUS) -> dict:
+    """Run the walks (``mus``, default :data:`CURVED_MUS`, x :data:`CURVED_ALBEDO`, each on a half-space and the
+    spheres of :data:`CURVED_RADII`; seeds ``seed + 1000 k + 100 j``, ``k`` the node's
+    :func:`jaxsss.render.walk.seed_slot` among :data:`CURVED_MUS`) and return the table: ``c`` ``(U, A,
+    len(CURVED_KAPPA), D)``, ``phi`` ``(U, A, B)``, the tallies and metadata."""
     from tqdm.auto import tqdm
+
+    from jaxsss.render.walk import seed_slot
 
     t0 = time.perf_counter()
     n_d, n_b = len(CURVED_D_EDGES) - 1, len(CURVED_MU_EDGES) - 1
-    sphere = np.zeros((len(CURVED_MUS), len(CURVED_ALBEDO), len(CURVED_RADII), n_d, n_b))
-    plane = np.zeros((len(CURVED_MUS), len(CURVED_ALBEDO), n_d, n_b))
-    nodes = [(k, j) for k in range(len(CURVED_MUS)) for j in range(len(CURVED_ALBEDO))]
+    mus = tuple(float(m) for m in mus)
+    sphere = np.zeros((len(mus), len(CURVED_ALBEDO), len(CURVED_RADII), n_d, n_b))
+    plane = np.zeros((len(mus), len(CURVED_ALBEDO), n_d, n_b))
+    nodes = [(k, j) for k in range(len(mus)) for j in range(len(CURVED_ALBEDO))]
     for k, j in tqdm(nodes, desc="exit on a curved surface", disable=not progress):
-        base = seed + 1000 * k + 100 * j
-        plane[k, j] = _histogram(CURVED_ALBEDO[j], CURVED_MUS[k], None, photons, base)
+        base = seed + 1000 * seed_slot(mus[k], CURVED_MUS) + 100 * j
+        plane[k, j] = _histogram(CURVED_ALBEDO[j], mus[k], None, photons, base)
         for r, radius in enumerate(CURVED_RADII):
-            sphere[k, j, r] = _histogram(CURVED_ALBEDO[j], CURVED_MUS[k], radius, photons, base + 1 + r)
-    amp, shape = fit_exit_curvature(sphere, plane)
-    return {"c": amp, "phi": shape, "sphere": sphere, "plane": plane, "mus": np.asarray(CURVED_MUS),
+            sphere[k, j, r] = _histogram(CURVED_ALBEDO[j], mus[k], radius, photons, base + 1 + r)
+    amp, shape = fit_exit_curvature(sphere, plane, mus)
+    return {"c": amp, "phi": shape, "sphere": sphere, "plane": plane, "mus": np.asarray(mus),
             "albedo": np.asarray(CURVED_ALBEDO), "radii": np.asarray(CURVED_RADII), "kappa": np.asarray(CURVED_KAPPA),
             "d": np.asarray(CURVED_D), "d_edges": CURVED_D_EDGES, "mu_edges": CURVED_MU_EDGES, "photons": photons,
             "seed": seed, "seconds": time.perf_counter() - t0,
@@ -168,7 +175,8 @@ def _node_rows(name: str, mus, albedo):
     """``(K, C, ...)``: table ``name`` at the incidence nodes ``mus``, linear in the albedos ``(C,)``."""
     from jaxsss.render.exit_distance import node_rows
 
-    return node_rows(load_exit_curvature_table()[name], CURVED_MUS, CURVED_ALBEDO, mus, albedo,
+    table = load_exit_curvature_table()
+    return node_rows(table[name], tuple(table["mus"]), CURVED_ALBEDO, mus, albedo,
                      "exit_curvature (curved exit)")
 
 
@@ -234,30 +242,17 @@ def curved_exit_distribution(mu_o, mus, albedo):
 
 
 def main(argv=None) -> int:
-    p = argparse.ArgumentParser(prog="python -m jaxsss.render.exit_curvature",
-                                description="The curved-exit table of the white kernels' orders >= 2 "
-                                            "(jaxsss.render.exit_curvature).")
-    p.add_argument("--regenerate", action="store_true", help="run the walks and write the table")
-    p.add_argument("--refit", action="store_true", help="refit c and phi from the shipped tallies (no walk)")
-    p.add_argument("--photons", type=int, default=CURVED_PHOTONS,
-                   help=f"photons per walk (default {CURVED_PHOTONS}; 6 spheres and a half-space per node)")
-    args = p.parse_args(argv)
-    if args.refit:
-        tab = dict(load_exit_curvature_table())
-        tab["c"], tab["phi"] = fit_exit_curvature(tab["sphere"], tab["plane"])
-        np.savez_compressed(CURVED_TABLE, **tab)
-        print(f"refitted {CURVED_TABLE}")
-        return 0
-    if not args.regenerate:
-        tab = load_exit_curvature_table()
-        print(f"{CURVED_TABLE}: c {tab['c'].shape} (mu_i, albedo, kappa l_u, d / l_u), phi {tab['phi'].shape} "
-              f"(mu_i, albedo, mu_o bin); {int(tab['photons'])} photons per walk, {float(tab['seconds']):.0f} s")
-        return 0
-    tab = generate_exit_curvature_table(args.photons)
-    CURVED_TABLE.parent.mkdir(parents=True, exist_ok=True)
-    np.savez_compressed(CURVED_TABLE, **{k: np.asarray(v) for k, v in tab.items()})
-    print(f"wrote {CURVED_TABLE} in {tab['seconds']:.0f} s")
-    return 0
+    from jaxsss.render.walk import table_main
+
+    return table_main(
+        argv, prog="python -m jaxsss.render.exit_curvature", path=CURVED_TABLE, photons=CURVED_PHOTONS,
+        description="The curved-exit table of the white kernels' orders >= 2 (jaxsss.render.exit_curvature).",
+        photons_help="photons per walk (6 spheres and a half-space per node)", load=load_exit_curvature_table,
+        refit=lambda tab: dict(zip(("c", "phi"), fit_exit_curvature(tab["sphere"], tab["plane"], tuple(tab["mus"])))),
+        generate=generate_exit_curvature_table, node_keys=("c", "phi", "sphere", "plane"),
+        describe=lambda tab: (f"c {tab['c'].shape} (mu_i, albedo, kappa l_u, d / l_u), phi {tab['phi'].shape} "
+                              f"(mu_i, albedo, mu_o bin); {int(tab['photons'])} photons per walk, "
+                              f"{float(tab['seconds']):.0f} s"))
 
 
 if __name__ == "__main__":

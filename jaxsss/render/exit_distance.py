@@ -139,6 +139,7 @@ def node_rows(table, table_mus, table_albedo, mus, albedo, what: str):
     ``(C,)`` (held beyond the ends; differentiable in ``albedo``)."""
     from jaxsss.render.passage import node_interval
 
+    table_mus = tuple(float(m) for m in table_mus)
     missing = [m for m in mus if float(m) not in table_mus]
     if missing:
         raise ValueError(f"{what}: mus {missing} have no table; it has {tuple(table_mus)}")

@@ -76,8 +76,9 @@ import numpy as np
 __all__ = ["AZIMUTH_FLOOR", "AZIMUTH_MUS", "azimuth_factor", "azimuth_rows", "factor_harmonics", "fit_oblique_azimuth",
            "generate_oblique_azimuth", "kernel_harmonic", "kernel_ring_mean", "load_oblique_azimuth"]
 
-AZIMUTH_MUS = (0.5, 0.1)
-"""The oblique nodes of the white-oblique kernel (:data:`jaxsss.render.bssrdf.KERNEL_MUS`)."""
+AZIMUTH_MUS = (0.75, 0.5, 0.1)
+"""The oblique nodes of the white-oblique kernel (:data:`jaxsss.render.bssrdf.KERNEL_MUS`) and 0.75, the lights-behind
+kernel's (:data:`jaxsss.render.bssrdf.LIGHTS_BEHIND_MUS`)."""
 AZIMUTH_FLOOR = 0.1
 """The factor ``1 + B cos phi + B_2 cos 2 phi`` is at least this at every azimuth (the first harmonic alone was held to
 ``|B| <= 0.9``, the same floor)."""
@@ -216,7 +217,7 @@ def factor_harmonics(a, h) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     return b1, b2, 1.0 / (1.0 + (a1 * b1 + a2 * b2) / 2.0)
 
 
-def fit_oblique_azimuth(sphere: np.ndarray, plane: np.ndarray) -> dict:
+def fit_oblique_azimuth(sphere: np.ndarray, plane: np.ndarray, mus=AZIMUTH_MUS) -> dict:
     """``B``, ``B2`` and ``G`` ``(U, A, len(CORRECTION_KAPPA), D)`` from the walks' tallies (``sphere`` ``(U, A, R, 4,
     D)`` over :data:`jaxsss.render.curvature_correction.CORRECTION_RADII`, ``plane`` ``(U, A, 4, D)``) and the kernel's
     own harmonics (:func:`kernel_harmonic`: the white-oblique kernel with the curvature ratio, ``Q`` and the cut beam,
@@ -231,8 +232,9 @@ def fit_oblique_azimuth(sphere: np.ndarray, plane: np.ndarray) -> dict:
 
     d = np.asarray(CORRECTION_D)
     area = np.pi * (CORRECTION_D_EDGES[1:] ** 2 - CORRECTION_D_EDGES[:-1] ** 2)
-    mus, sources = white_tables(0.0, 1.0, True)
-    shape = (len(AZIMUTH_MUS), len(CORRECTION_ALBEDO), len(CORRECTION_RADII) + 1)
+    oblique = tuple(float(m) for m in mus)
+    mus, sources = white_tables(0.0, 1.0, True, mus=oblique)
+    shape = (len(oblique), len(CORRECTION_ALBEDO), len(CORRECTION_RADII) + 1)
     b_all, b2_all, g_all = np.zeros(shape + (len(d),)), np.zeros(shape + (len(d),)), np.ones(shape + (len(d),))
     m_all = np.ones(shape + (len(d),))
     h_walk, h_kernel = np.full(shape + (2, len(d)), np.nan), np.full(shape + (N_HARMONICS, len(d)), np.nan)
@@ -242,7 +244,7 @@ def fit_oblique_azimuth(sphere: np.ndarray, plane: np.ndarray) -> dict:
         # The back-lit render's kernel: the cut beam on (a render cuts the light columns that end in the object).
         kernel = white_kernel(medium, sources, mus, shift=True, curvature=True, first_order=True,
                               curvature_transport=True, passage=0.0)
-        for u, mu in enumerate(AZIMUTH_MUS):
+        for u, mu in enumerate(oblique):
             for r in range(len(CORRECTION_RADII) + 1):
                 radius = None if r == 0 else CORRECTION_RADII[r - 1]
                 tally = plane[u, j] if r == 0 else sphere[u, j, r - 1]
@@ -270,16 +272,19 @@ def fit_oblique_azimuth(sphere: np.ndarray, plane: np.ndarray) -> dict:
     return {"B": b_all, "B2": b2_all, "G": g_all, "M": m_all, "H_walk": h_walk, "H_kernel": h_kernel}
 
 
-def generate_oblique_azimuth(photons: int = AZIMUTH_PHOTONS, seed: int = 71, progress: bool = True) -> dict:
-    """Run the walks (:data:`AZIMUTH_MUS` x the correction's albedos, each on a half-space and the correction's
-    spheres) and return the table: ``B``, ``G``, the harmonics, the tallies and metadata."""
+def generate_oblique_azimuth(photons: int = AZIMUTH_PHOTONS, seed: int = 71, progress: bool = True,
+                             mus=AZIMUTH_MUS) -> dict:
+    """Run the walks (``mus``, default :data:`AZIMUTH_MUS`, x the correction's albedos, each on a half-space and the
+    correction's spheres; seeds by each node's slot among :data:`AZIMUTH_MUS`) and return the table: ``B``, ``G``, the
+    harmonics, the tallies and metadata. A node's fit needs the correction's and the cut beam's tables at that node."""
     from jaxsss.render.curvature_correction import CORRECTION_ALBEDO, CORRECTION_RADII
     from jaxsss.render.walk import sphere_and_plane_tallies
 
     t0 = time.perf_counter()
-    sphere, plane = sphere_and_plane_tallies(_tally, AZIMUTH_MUS, CORRECTION_ALBEDO, CORRECTION_RADII, photons, seed,
-                                             "oblique azimuth", progress)
-    return {**fit_oblique_azimuth(sphere, plane), "sphere": sphere, "plane": plane, "mus": np.asarray(AZIMUTH_MUS),
+    mus = tuple(float(m) for m in mus)
+    sphere, plane = sphere_and_plane_tallies(_tally, mus, CORRECTION_ALBEDO, CORRECTION_RADII, photons, seed,
+                                             "oblique azimuth", progress, table_mus=AZIMUTH_MUS)
+    return {**fit_oblique_azimuth(sphere, plane, mus), "sphere": sphere, "plane": plane, "mus": np.asarray(mus),
             "albedo": np.asarray(CORRECTION_ALBEDO), "radii": np.asarray(CORRECTION_RADII), "photons": photons,
             "seed": seed, "seconds": time.perf_counter() - t0,
             "source": "jaxsss.render.walk.pencil_beam_walk: index-matched isotropic sphere and half-space, orders "
@@ -301,7 +306,7 @@ def azimuth_rows(mus: tuple, albedo):
 
     table = load_oblique_azimuth()
     oblique = tuple(m for m in mus if m != 1.0)
-    rows = [node_rows(table[name], AZIMUTH_MUS, CORRECTION_ALBEDO, oblique, albedo,
+    rows = [node_rows(table[name], tuple(table["mus"]), CORRECTION_ALBEDO, oblique, albedo,
                       "oblique_azimuth (an oblique beam's light ahead of its entry)") for name in ("G", "B", "B2")]
     out = []
     for value, row in zip((1.0, 0.0, 0.0), rows):
@@ -343,8 +348,8 @@ def main(argv=None) -> int:
         description="The first two azimuthal harmonics of an oblique beam's orders >= 2 about its entry, walk over the "
                     "white-oblique kernel (jaxsss.render.oblique_azimuth).",
         photons_help="photons per walk (the correction's spheres and a half-space per node)", load=load_oblique_azimuth,
-        refit=lambda tab: fit_oblique_azimuth(tab["sphere"], tab["plane"]),
-        generate=generate_oblique_azimuth,
+        refit=lambda tab: fit_oblique_azimuth(tab["sphere"], tab["plane"], tuple(tab["mus"])),
+        generate=generate_oblique_azimuth, node_keys=("B", "B2", "G", "M", "H_walk", "H_kernel", "sphere", "plane"),
         describe=lambda tab: (f"B {tab['B'].shape} (mu_i, albedo, kappa l_u, d / l_u); "
                               f"{int(tab['photons'])} photons per walk, {float(tab['seconds']):.0f} s"))
 

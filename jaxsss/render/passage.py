@@ -54,7 +54,6 @@ travel along a short chord").
 
 from __future__ import annotations
 
-import argparse
 import functools
 import sys
 import time
@@ -70,9 +69,10 @@ __all__ = ["CUT_MIN_LOSS", "PASSAGE_ALBEDO", "PASSAGE_FLOOR", "PASSAGE_MUS", "PA
            "load_passage_table", "node_interval", "passage_cells", "passage_loss", "passage_loss_table",
            "piecewise_linear", "truncated_travel", "view_chords"]
 
-PASSAGE_MUS = (1.0, 0.5, 0.1)
-"""Incidence cosines of the cut-beam table: the ``white-oblique`` kernel's nodes (1 and
-:data:`jaxsss.render.bssrdf.KERNEL_MUS`)."""
+PASSAGE_MUS = (1.0, 0.75, 0.5, 0.1)
+"""Incidence cosines of the cut-beam table: the white-oblique kernel's nodes (1 and
+:data:`jaxsss.render.bssrdf.KERNEL_MUS`) and 0.75, the lights-behind kernel's
+(:data:`jaxsss.render.bssrdf.LIGHTS_BEHIND_MUS`); descending (the lookups take the shipped table's own ``mus``)."""
 PASSAGE_ALBEDO = (0.3, 0.5, 0.7, 0.8, 0.9, 0.97, 0.99)
 """Single-scattering albedos of the table (the similarity albedo ``sigma_s' / sigma_t'``; held beyond the ends)."""
 PASSAGE_TAU = (0.25, 0.5, 1.0, 1.5, 2.0, 3.0, 4.0, 6.0, 10.0)
@@ -270,20 +270,25 @@ def _loss_from_tallies(tally: np.ndarray, d_edges: np.ndarray = _D_EDGES) -> np.
     return np.clip(out, 0.0, 1.0)
 
 
-def generate_passage_table(photons: int = PASSAGE_PHOTONS, seed: int = 1, progress: bool = True) -> dict:
-    """Run the walks and return the table ``loss`` ``(U, A, T, X, 2)`` over :data:`PASSAGE_MUS`,
+def generate_passage_table(photons: int = PASSAGE_PHOTONS, seed: int = 1, progress: bool = True,
+                           mus=PASSAGE_MUS) -> dict:
+    """Run the walks (seeds ``seed + 100 k + j``, ``k`` the node's :func:`jaxsss.render.walk.seed_slot` among
+    :data:`PASSAGE_MUS`) and return the table ``loss`` ``(U, A, T, X, 2)`` over ``mus`` (default :data:`PASSAGE_MUS`),
     :data:`PASSAGE_ALBEDO`, :data:`PASSAGE_TAU`, :data:`PASSAGE_X` and the half-plane behind and ahead of the entry
     point, with its metadata."""
     from tqdm.auto import tqdm
 
+    from jaxsss.render.walk import seed_slot
+
     t0 = time.perf_counter()
-    loss = np.zeros((len(PASSAGE_MUS), len(PASSAGE_ALBEDO), len(PASSAGE_TAU), len(PASSAGE_X), 2))
-    nodes = [(k, j) for k in range(len(PASSAGE_MUS)) for j in range(len(PASSAGE_ALBEDO))]
+    mus = tuple(float(m) for m in mus)
+    loss = np.zeros((len(mus), len(PASSAGE_ALBEDO), len(PASSAGE_TAU), len(PASSAGE_X), 2))
+    nodes = [(k, j) for k in range(len(mus)) for j in range(len(PASSAGE_ALBEDO))]
     for k, j in tqdm(nodes, desc="passage table", disable=not progress):
-        tally = cut_beam_tallies(PASSAGE_ALBEDO[j], PASSAGE_MUS[k], photons, seed + 100 * k + j)
+        tally = cut_beam_tallies(PASSAGE_ALBEDO[j], mus[k], photons, seed + 100 * seed_slot(mus[k], PASSAGE_MUS) + j)
         for half in (0, 1):
             loss[k, j, ..., half] = _loss_from_tallies(tally[half])
-    return {"loss": loss, "mus": np.asarray(PASSAGE_MUS), "albedo": np.asarray(PASSAGE_ALBEDO),
+    return {"loss": loss, "mus": np.asarray(mus), "albedo": np.asarray(PASSAGE_ALBEDO),
             "tau": np.asarray(PASSAGE_TAU), "x": np.asarray(PASSAGE_X), "photons": photons, "seed": seed,
             "seconds": time.perf_counter() - t0,
             "source": "jaxsss.render.passage.cut_beam_tallies: index-matched isotropic half-space, pencil beam, "
@@ -299,14 +304,16 @@ def load_passage_table() -> dict:
 
 def passage_loss_table(albedo, mus, xp=jnp):
     """``(K, T, X, 2, C)``: the loss table (behind, ahead) at the kernel's incidence nodes ``mus`` (each one of
-    :data:`PASSAGE_MUS`), interpolated linearly to the channels' similarity albedos ``albedo`` ``(C,)`` (held beyond
-    the ends; differentiable in ``albedo``). ``xp``: the array module (``numpy`` for the host's test of whether the
-    cut matters, :func:`cut_matters`, where eager JAX compiled each operation: 0.45 s of a process's first render)."""
+    :data:`PASSAGE_MUS`, the shipped table's ``mus``), interpolated linearly to the channels' similarity albedos
+    ``albedo`` ``(C,)`` (held beyond the ends; differentiable in ``albedo``). ``xp``: the array module (``numpy`` for
+    the host's test of whether the cut matters, :func:`cut_matters`, where eager JAX compiled each operation: 0.45 s of
+    a process's first render)."""
     tab = load_passage_table()
-    missing = [m for m in mus if float(m) not in PASSAGE_MUS]
+    nodes = tuple(float(m) for m in tab["mus"])
+    missing = [m for m in mus if float(m) not in nodes]
     if missing:
-        raise ValueError(f"passage_loss_table: mus {missing} have no cut-beam table; the table has {PASSAGE_MUS}")
-    loss = xp.asarray(tab["loss"][[PASSAGE_MUS.index(float(m)) for m in mus]])  # (K, A, T, X, 2)
+        raise ValueError(f"passage_loss_table: mus {missing} have no cut-beam table; the table has {nodes}")
+    loss = xp.asarray(tab["loss"][[nodes.index(float(m)) for m in mus]])  # (K, A, T, X, 2)
     i, t = node_interval(xp.atleast_1d(albedo), PASSAGE_ALBEDO, xp)
     # Linear in the albedo between the table's nodes.
     w0, w1 = (1.0 - t)[None, :, None, None, None], t[None, :, None, None, None]
@@ -407,24 +414,15 @@ def passage_loss(cells, tau, x, ahead=0.5):
 
 
 def main(argv=None) -> int:
-    p = argparse.ArgumentParser(prog="python -m jaxsss.render.passage",
-                                description="The cut-beam loss table of the white kernels' passage "
-                                            "(jaxsss.render.passage).")
-    p.add_argument("--regenerate", action="store_true", help="run the walks and write the table")
-    p.add_argument("--photons", type=int, default=PASSAGE_PHOTONS,
-                   help=f"photons per (incidence, albedo) node (default {PASSAGE_PHOTONS})")
-    args = p.parse_args(argv)
-    if not args.regenerate:
-        tab = load_passage_table()
-        print(f"{PASSAGE_TABLE}: loss {tab['loss'].shape} (mu_i, albedo, tau, x = d / t, behind/ahead); "
-              f"{int(tab['photons'])} "
-              f"photons per node, {float(tab['seconds']):.0f} s")
-        return 0
-    tab = generate_passage_table(args.photons)
-    PASSAGE_TABLE.parent.mkdir(parents=True, exist_ok=True)
-    np.savez_compressed(PASSAGE_TABLE, **{k: np.asarray(v) for k, v in tab.items()})
-    print(f"wrote {PASSAGE_TABLE} in {tab['seconds']:.0f} s")
-    return 0
+    from jaxsss.render.walk import table_main
+
+    return table_main(
+        argv, prog="python -m jaxsss.render.passage", path=PASSAGE_TABLE, photons=PASSAGE_PHOTONS,
+        description="The cut-beam loss table of the white kernels' passage (jaxsss.render.passage).",
+        photons_help="photons per (incidence, albedo) node", load=load_passage_table, refit=None,
+        generate=generate_passage_table, node_keys=("loss",),
+        describe=lambda tab: (f"loss {tab['loss'].shape} (mu_i, albedo, tau, x = d / t, behind/ahead); "
+                              f"{int(tab['photons'])} photons per node, {float(tab['seconds']):.0f} s"))
 
 
 if __name__ == "__main__":

@@ -356,9 +356,10 @@ def _exit_azimuth(scene, first_order: bool) -> tuple[PlanItem | None, tuple]:
                     f"{seen} along the light's flow: the exit's current is added where the view looks along it "
                     "(jaxsss.render.exit_current; 1.7-1.9x the sums' time), the curvature ratio's far field is "
                     "corrected by transport (jaxsss.render.curvature_correction) and oblique beams keep their light "
-                    f"ahead of the entry (jaxsss.render.oblique_azimuth) for the lights behind{apart}; still 8-24% "
-                    "per pixel off on back-lit spheres (worst channel) and 13-14% on teapots, up to 27% too dark on "
-                    "the far dark side in green and blue (docs/path_tracer.md)"), \
+                    f"ahead of the entry (jaxsss.render.oblique_azimuth) for the lights behind{apart}, with a fourth "
+                    "incidence node at 0.75 (jaxsss.render.bssrdf.LIGHTS_BEHIND_MUS); still 8-18% per pixel off on "
+                    "back-lit spheres (worst channel) and 13-14% on teapots, up to 16-23% too dark past the "
+                    "terminator in blue (docs/path_tracer.md)"), \
         tuple(behind)
 
 

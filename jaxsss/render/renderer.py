@@ -23,8 +23,9 @@ from tqdm import tqdm
 from jaxsss._config import render_jit, to_device
 from jaxsss.medium import Medium
 from jaxsss.render import radiance as rad
-from jaxsss.render.bssrdf import (CURRENT_EXITS, albedo_correction, current_radiance, exit_model_for, exit_weights,
-                                  incident_flux, shift_reach, surface_tangents, white_kernel, white_tables)
+from jaxsss.render.bssrdf import (CURRENT_EXITS, LIGHTS_BEHIND_MUS, albedo_correction, current_radiance, exit_model_for,
+                                  exit_weights, incident_flux, shift_reach, surface_tangents, white_kernel,
+                                  white_tables)
 from jaxsss.render.passage import PASSAGE_FLOOR, cut_matters, interaction_probability, truncated_travel, view_chords
 from jaxsss.render.camera import camera_frame
 from jaxsss.render.first_order import diffuse_first_order_restore, first_order_radiance
@@ -350,8 +351,10 @@ def assemble_prepared(scene, plan: ScenePlan, samples, tree, shading: ShadingPoi
     if plan.bssrdf != "dipole":
         ent_normal = to_device(entity_normals(samples.normals[order] * samples.areas[order, None], tree))
         medium = scene.material.medium
+        # Lights behind an index-matched object: a third oblique node (their light crosses it; LIGHTS_BEHIND_MUS).
+        behind = plan.exit_current and float(medium.eta) == 1.0 and shading.first_order is not None
         mus, tables = white_tables(0.0 if medium.g is None else float(medium.g), float(medium.eta),
-                                   oblique=plan.bssrdf == "white-oblique")
+                                   oblique=plan.bssrdf == "white-oblique", mus=LIGHTS_BEHIND_MUS if behind else None)
         # The first order marched in the geometry (plan.first_order): the profiles keep orders >= 2 and leave by
         # their own exit distribution, less grazing on a curved surface (jaxsss.render.exit_curvature), and brighter
         # along the light's flow where the plan keeps the current (jaxsss.render.exit_current).

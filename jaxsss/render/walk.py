@@ -16,8 +16,23 @@ import functools
 
 import numpy as np
 
-__all__ = ["diffuse_light_walk", "fresnel_walk", "isotropic_directions", "load_table", "pencil_beam_walk", "roulette",
-           "sphere_and_plane_tallies", "table_main", "walk_photons"]
+__all__ = ["SEED_ORDER", "diffuse_light_walk", "fresnel_walk", "isotropic_directions", "load_table", "pencil_beam_walk",
+           "roulette", "seed_slot", "insert_node", "sphere_and_plane_tallies", "table_main", "walk_photons"]
+
+SEED_ORDER = (1.0, 0.5, 0.1, 0.75)
+"""Incidence nodes in the order they joined the walks' tables (0.75 on 2026-12-02, for lights behind:
+:data:`jaxsss.render.bssrdf.LIGHTS_BEHIND_MUS`). A node's seeds come from its place here (:func:`seed_slot`), so a node
+added later leaves the shipped rows as they were."""
+
+
+def seed_slot(mu: float, mus) -> int:
+    """The seed slot ``k`` of incidence node ``mu`` in a table over the nodes ``mus``: its place in :data:`SEED_ORDER`
+    among the table's nodes. A node that is not in both has no seeds: a ValueError says where to add it."""
+    order = [m for m in SEED_ORDER if m in tuple(float(v) for v in mus)]
+    if float(mu) not in order:
+        raise ValueError(f"seed_slot: mu {float(mu):g} must be one of the table's nodes {tuple(float(v) for v in mus)} "
+                         f"and of SEED_ORDER {SEED_ORDER} (jaxsss.render.walk; a new node goes at SEED_ORDER's end)")
+    return order.index(float(mu))
 
 
 def isotropic_directions(rng: np.random.Generator, n: int) -> np.ndarray:
@@ -187,22 +202,51 @@ def fresnel_walk(rng: np.random.Generator, pos: np.ndarray, d: np.ndarray, w: np
         pos, d, w, order, payload = pos[alive], d[alive], w[alive], order[alive], payload[alive]
 
 
+def insert_node(table: dict, part: dict, keys) -> dict:
+    """``table`` (incidence nodes ``mus``, descending, on the first axis of its entries ``keys``) with the one-node
+    table ``part`` put in at its node's place; ``seconds`` the sum of both."""
+    mu, mus = float(part["mus"][0]), [float(m) for m in table["mus"]]
+    if len(part["mus"]) != 1 or mu in mus:
+        raise ValueError(f"insert_node: part must hold one node that the table lacks; got {list(part['mus'])}, the "
+                         f"table has {mus}")
+    at = sum(m > mu for m in mus)
+    out = dict(table)
+    for key in ("mus",) + tuple(keys):
+        out[key] = np.insert(np.asarray(table[key]), at, np.asarray(part[key])[0], axis=0)
+    out["seconds"] = float(table["seconds"]) + float(part["seconds"])
+    return out
+
+
 def table_main(argv, *, prog: str, description: str, path, photons: int, photons_help: str, load, refit, generate,
-               describe) -> int:
+               describe, node_keys: tuple = ()) -> int:
     """The command line of a transport table made by these walks (``python -m jaxsss.render.<table>``): without
     options it describes the shipped table at ``path``; ``--refit`` refits it from its own tallies (``refit(table) ->
-    updated entries``, no walk); ``--regenerate`` runs the walks (``generate(photons) -> table``, with ``seconds``) and
-    writes it (``--out`` elsewhere). ``load()`` reads the shipped table; ``describe(table)`` is its one-line summary."""
+    updated entries``, no walk; None: not offered); ``--regenerate`` runs the walks (``generate(photons) -> table``,
+    with ``seconds``) and writes it (``--out`` elsewhere); ``--add-node MU`` runs one more incidence node's walks
+    (``generate(photons, mus=(MU,))``, its seeds from :func:`seed_slot`) and puts its rows of ``node_keys`` in
+    (:func:`insert_node`): the shipped rows stay as they were. ``load()`` reads the shipped table; ``describe(table)``
+    is its one-line summary."""
     import argparse
     from pathlib import Path
 
     p = argparse.ArgumentParser(prog=prog, description=description)
     p.add_argument("--regenerate", action="store_true", help="run the walks and write the table")
-    p.add_argument("--refit", action="store_true", help="refit from the shipped tallies (no walk)")
+    if refit is not None:
+        p.add_argument("--refit", action="store_true", help="refit from the shipped tallies (no walk)")
+    if node_keys:
+        p.add_argument("--add-node", type=float, metavar="MU",
+                       help="run the walks of one more incidence cosine MU (0 < MU <= 1) and add its rows")
     p.add_argument("--photons", type=int, default=photons, help=f"{photons_help} (default {photons})")
     p.add_argument("--out", type=Path, default=Path(path), help=f"the table's path (default {path})")
     args = p.parse_args(argv)
-    if args.refit:
+    if getattr(args, "add_node", None) is not None:
+        if not 0.0 < args.add_node <= 1.0:
+            p.error(f"--add-node: the incidence cosine must lie in (0, 1]; got {args.add_node}")
+        tab = insert_node(dict(load()), generate(args.photons, mus=(args.add_node,)), node_keys)
+        np.savez_compressed(args.out, **tab)
+        print(f"added mu_i {args.add_node:g} to {args.out} ({len(tab['mus'])} nodes)")
+        return 0
+    if getattr(args, "refit", False):
         tab = dict(load())
         tab.update(refit(tab))
         np.savez_compressed(args.out, **tab)
@@ -218,17 +262,19 @@ def table_main(argv, *, prog: str, description: str, path, photons: int, photons
     return 0
 
 
-def sphere_and_plane_tallies(tally, mus, albedos, radii, photons: int, seed: int, desc: str, progress: bool = True):
+def sphere_and_plane_tallies(tally, mus, albedos, radii, photons: int, seed: int, desc: str, progress: bool = True,
+                             table_mus=None):
     """``(sphere (U, A, R, ...), plane (U, A, ...))``: ``tally(albedo, mu_i, radius, photons, seed)`` for every
     incidence cosine in ``mus`` and albedo in ``albedos``, on the half-space (``radius=None``) and each sphere of
     ``radii`` (transport lengths). Seeds: ``seed + 1000 k + 100 j`` for the half-space, then ``+ 1 + r`` per sphere
-    (the shipped tables' scheme). A progress bar over the nodes (``desc``)."""
+    (the shipped tables' scheme), ``k`` the node's :func:`seed_slot` among ``table_mus`` (the whole table's nodes;
+    default ``mus``). A progress bar over the nodes (``desc``)."""
     from tqdm.auto import tqdm
 
     sphere, plane = {}, {}
     nodes = [(k, j) for k in range(len(mus)) for j in range(len(albedos))]
     for k, j in tqdm(nodes, desc=desc, disable=not progress):
-        base = seed + 1000 * k + 100 * j
+        base = seed + 1000 * seed_slot(mus[k], mus if table_mus is None else table_mus) + 100 * j
         plane[k, j] = tally(albedos[j], mus[k], None, photons, base)
         for r, radius in enumerate(radii):
             sphere[k, j, r] = tally(albedos[j], mus[k], radius, photons, base + 1 + r)

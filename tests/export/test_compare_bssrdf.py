@@ -350,7 +350,9 @@ def test_skin1_lit_from_behind_against_its_path_traced_reference():
     benchmarks/references/materials; 32768 spp): the camera sees the terminator along the light's flow, which the plan
     says, and keeps the exit's current there (jaxsss.render.exit_current) with the curvature ratio's far field
     corrected by transport (jaxsss.render.curvature_correction) and the oblique beams' light ahead of their entry
-    (jaxsss.render.oblique_azimuth, its first two harmonics). The goals are missed in red. Achieved (2026-12-01, stop
+    (jaxsss.render.oblique_azimuth, its first two harmonics). The goals are missed in red. With the lights-behind
+    kernel's node at 0.75 (jaxsss.render.bssrdf.LIGHTS_BEHIND_MUS, 2026-12-02): mare_lit 0.078 / 0.040 / 0.052, band
+    0.029 / 0.036 / 0.047, sums 0.969 / 0.974 / 0.965. Achieved (2026-12-01, stop
     67, the azimuth's harmonics fitted on the kernel as rendered, its chord and cut beam included): mare_lit 0.080 /
     0.040 / 0.052, band 0.030 / 0.036 / 0.047, sums 0.966 / 0.974 / 0.965; green meets the 5% goal, blue nearly, red
     misses by the model. Fitted on the uncut kernel (stop 66, with the azimuth's second harmonic): mare_lit 0.114 /
@@ -380,7 +382,11 @@ def test_chicken1_lit_from_behind_and_its_far_dark_side():
     benchmarks/references/materials; 16384 spp, noise 3.2 / 2.1 / 1.7%). The far dark side (cos -1 to -0.5 to the
     light) is lit by light that crossed the sphere, which converges near the light's antipode: the curvature
     correction's antipode bin (jaxsss.render.curvature_correction.fit_curvature_correction) is what lights it, and the
-    oblique beams' light ahead of their entry (jaxsss.render.oblique_azimuth). Achieved (2026-12-01, stop 67, the
+    oblique beams' light ahead of their entry (jaxsss.render.oblique_azimuth). With the lights-behind kernel's node at
+    0.75 (jaxsss.render.bssrdf.LIGHTS_BEHIND_MUS, 2026-12-02; light entering between the normal and the 0.5 node was
+    rendered as two beams, and fell short on the far side): mare_lit 0.155 / 0.077 / 0.171, band 0.094 / 0.017 /
+    0.102, sums 1.019 / 0.968 / 0.897; the far dark side's bias +0.035 in red (it was right by a cancellation, -0.032)
+    and -0.051 in green (-0.152). Before it (2026-12-01, stop 67, the
     azimuth's harmonics fitted on the kernel as rendered, its chord and cut beam included): mare_lit 0.150 / 0.122 /
     0.171, band 0.095 / 0.017 / 0.102, sums 0.980 / 0.950 / 0.897; the far dark side's bias -0.03 in red. The red band
     moved up (0.063 -> 0.095, +9.5% at cos -0.1 to 0.1): the grazing node's rendered mean is 20-45% above the walk's
@@ -402,11 +408,11 @@ def test_chicken1_lit_from_behind_and_its_far_dark_side():
     assert result.report["plan"]["exit_current"]
     ref, coverage, pixels = data["image"].astype(np.float64), data["coverage"].astype(np.float64), pixel_geometry(scene)
     m = compare_images(result.image, ref, pixels, coverage=coverage)
-    assert np.all(np.array(m["mare_lit"]) <= (0.165, 0.134, 0.188)), m["mare_lit"]
-    assert np.all(np.array(m["mare_band"]) <= (0.105, 0.019, 0.112)), m["mare_band"]
-    assert np.all(np.array(m["sum_ratio"]) >= (0.97, 0.94, 0.89)), m["sum_ratio"]
+    assert np.all(np.array(m["mare_lit"]) <= (0.171, 0.085, 0.188)), m["mare_lit"]
+    assert np.all(np.array(m["mare_band"]) <= (0.104, 0.019, 0.112)), m["mare_band"]
+    assert np.all((np.array(m["sum_ratio"]) >= (0.97, 0.95, 0.89)) & (np.array(m["sum_ratio"]) <= 1.03)), m["sum_ratio"]
     far = error_by_cos(result.image, ref, pixels, coverage=coverage, edges=np.array([-1.0, -0.5]))[0]
-    assert far["n"] > 1000 and -0.07 < far["bias"][0] < 0.0, far
+    assert far["n"] > 1000 and abs(far["bias"][0]) < 0.06 and far["bias"][1] > -0.08, far
 
 
 def test_skin1_under_a_key_and_a_rim_light_against_its_path_traced_reference():

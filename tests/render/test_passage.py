@@ -379,3 +379,28 @@ def test_the_terminator_of_the_path_traced_ketchup_sphere():
     flat = compare_images(image, ref, pixels, coverage=coverage)
     assert m["mare_band"][0] < 0.6 * flat["mare_band"][0], (m["mare_band"], flat["mare_band"])
     np.testing.assert_allclose(m["mare_band"][1:], flat["mare_band"][1:], atol=0.002)
+
+
+def test_the_eyes_cut_interpolates_over_the_kernels_own_nodes():
+    """With the lights-behind kernel's node at 0.75 (``LIGHTS_BEHIND_MUS``) the eye's cut is linear in the view
+    cosine between that kernel's nodes: a view at cosine 0.75 takes the 0.75 row alone, as a kernel with only the
+    nodes 1 and 0.75 does, and not the mix of the 1 and 0.5 rows that the three-node kernel takes there."""
+    from jaxsss.medium import Medium
+    from jaxsss.render.bssrdf import LIGHTS_BEHIND_MUS, white_kernel, white_tables
+
+    medium = Medium(sigma_a=jnp.array([0.015]), sigma_s_prime=jnp.array([0.15]), eta=1.0)
+    n = 5
+    normal = np.tile([0.0, 0.0, 1.0], (n, 1))
+    tangent = np.tile([np.sqrt(1.0 - 0.75**2), 0.0, 0.0], (n, 1))
+    normals = (jnp.asarray(np.concatenate([normal, np.full((n, 1), 4.0), tangent], axis=1)), jnp.asarray(normal))
+    delta = jnp.asarray(np.linspace(0.5, 12.0, n)[:, None] * np.array([[1.0, 0.3, 0.0]]))
+
+    def kept(oblique):
+        mus, sources = white_tables(0.0, 1.0, True, mus=oblique)
+        kernel = white_kernel(medium, sources, mus, shift=True, curvature=True, passage=1.0)
+        return np.asarray(kernel._view_kept(delta, normals))
+
+    four, two, three = kept(LIGHTS_BEHIND_MUS), kept((0.75,)), kept((0.5, 0.1))
+    assert four.shape == (n, 1, 1) and np.all((four > 0.0) & (four <= 1.0))
+    np.testing.assert_allclose(four, two, rtol=1e-12)
+    assert np.max(np.abs(four - three)) > 1e-4

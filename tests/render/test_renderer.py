@@ -3,6 +3,8 @@ the plan's shortcuts within tolerance, shapes, and gradients of the image in the
 
 from __future__ import annotations
 
+from pathlib import Path
+
 import jax.numpy as jnp
 import numpy as np
 import pytest
@@ -240,3 +242,17 @@ def test_prepare_compiles_nothing_for_a_new_resolution():
     finally:
         jax.monitoring.unregister_event_duration_listener(listen)
     assert events == []
+
+
+def test_lights_behind_take_the_kernel_with_a_node_at_three_quarters():
+    """An index-matched object lit from behind sums its light with the oblique nodes ``LIGHTS_BEHIND_MUS`` (0.75
+    added: the light that crosses the object, docs/path_tracer.md); a front-lit one keeps ``KERNEL_MUS``."""
+    from jaxsss.render import load_scene
+    from jaxsss.render.bssrdf import KERNEL_MUS, LIGHTS_BEHIND_MUS
+    from tests.export.test_compare_bssrdf import REFERENCES
+
+    materials = Path(__file__).parents[2] / "benchmarks" / "references" / "materials"
+    behind, _, _ = prepare(load_scene(materials / "chicken1_sphere_backlit.toml"), resolution=(16, 16))
+    front, _, _ = prepare(load_scene(REFERENCES / "skin1_sphere.toml"), resolution=(16, 16))
+    assert behind.bssrdf_exit == "multiple-current" and behind.bssrdf_mus == (1.0,) + LIGHTS_BEHIND_MUS
+    assert front.bssrdf_mus == (1.0,) + KERNEL_MUS

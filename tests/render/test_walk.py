@@ -80,3 +80,26 @@ def test_a_pencil_beam_behind_a_boundary_reflects_adding_doublings_albedo(eta):
 
         pencil_beam_walk(albedo, mu, 30_000, 17 + k, tally, eta=eta)
         assert total[0] / 30_000 == pytest.approx(exact[k], rel=1.5e-2), (mu, total[0] / 30_000, exact[k])
+
+
+def test_a_node_added_later_leaves_the_shipped_rows_and_gets_its_own_seeds():
+    """A table's walks draw each node's seeds from its slot in ``SEED_ORDER`` among the table's nodes: the rows of a
+    node do not depend on which other nodes are walked with it, so ``--add-node`` (``insert_node``) builds the same
+    table as walking every node at once (the cut beam's table, 3000 photons per node)."""
+    from jaxsss.render.passage import PASSAGE_MUS, generate_passage_table
+    from jaxsss.render.walk import SEED_ORDER, insert_node, seed_slot
+
+    assert [seed_slot(m, PASSAGE_MUS) for m in (1.0, 0.5, 0.1, 0.75)] == [0, 1, 2, 3]
+    assert [seed_slot(m, (0.75, 0.5, 0.1)) for m in (0.5, 0.1, 0.75)] == [0, 1, 2]  # a table without the normal node
+    assert set(PASSAGE_MUS) <= set(SEED_ORDER)
+    whole = generate_passage_table(3000, progress=False, mus=(1.0, 0.75, 0.5))
+    older = generate_passage_table(3000, progress=False, mus=(1.0, 0.5))
+    part = generate_passage_table(3000, progress=False, mus=(0.75,))
+    added = insert_node(older, part, ("loss",))
+    np.testing.assert_array_equal(added["mus"], whole["mus"])
+    np.testing.assert_array_equal(added["loss"], whole["loss"])
+    assert added["seconds"] == pytest.approx(older["seconds"] + part["seconds"])
+    with pytest.raises(ValueError, match="lacks"):
+        insert_node(whole, part, ("loss",))
+    with pytest.raises(ValueError, match="SEED_ORDER"):
+        seed_slot(0.3, PASSAGE_MUS)
