@@ -141,10 +141,11 @@ against the skin1 reference all four gave mare_lit 0.061 / 0.045 / 0.043 and sum
 (compile 103 s), these two 0.057 / 0.043 / 0.044 and 0.966 / 0.991 / 1.008 in 3.1 s (compile 42 s); docs/path_tracer.md."""
 LIGHTS_BEHIND_MUS = (0.75, 0.5, 0.1)
 """The oblique nodes of the index-matched kernel that sums the light of lights behind the object (the plan's exit
-current, :mod:`jaxsss.render.exit_current`): a third node at 0.75. There the light that crosses the object lights its
-far side, and the hat mix of the 0.5 and normal nodes put light entering between them at two places on the far side
-instead of one: on chicken1's back-lit sphere light entering at 0.73-0.77 reached the far side at 0.57-0.79 of the
-sphere walk's (docs/path_tracer.md, "A node at 0.75 for lights behind")."""
+current, :mod:`jaxsss.render.exit_current`, with the first order marched): a third oblique node, at 0.75. There the
+light that crosses the object lights its far side, and the hat mix of the 0.5 and normal nodes put light entering
+between them at two places on the far side instead of one: on chicken1's back-lit sphere light entering at 0.6-0.9
+reached the far dark side at 0.57-0.64 (green) and 0.76-0.83 (red) of the sphere walk's, with the node 0.78-1.01 and
+0.82-1.00 (docs/path_tracer.md, "A node at 0.75 for lights behind")."""
 SHIFT_ALBEDO = (0.3, 0.5, 0.7, 0.8, 0.9, 0.97, 0.99)
 SHIFT_RATIO = ((0.577, 0.660, 0.775, 0.898),
                (0.555, 0.637, 0.758, 0.880),
