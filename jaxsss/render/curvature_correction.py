@@ -189,7 +189,8 @@ def log_correction_table(r_lu, kappa_lu, mus, albedo, log_q=None, kappa=CORRECTI
     from jaxsss.render.passage import piecewise_linear
 
     if log_q is None:
-        log_q, table_mus = load_curvature_correction()["log_q"], tuple(load_curvature_correction()["mus"])
+        shipped = load_curvature_correction()
+        log_q, table_mus = shipped["log_q"], tuple(shipped["mus"])
     rows = node_rows(log_q, table_mus, CORRECTION_ALBEDO, mus, albedo,
                      "curvature_correction (transport-corrected curvature ratio)")  # (K, C, Nk, D)
     # Linear in d / l_u at every curvature node: (G, K, C, Nk) -> (Nk, G, 1, K, C).

@@ -160,19 +160,20 @@ def load_exit_current_table() -> dict:
 
 
 def _table(name: str, eta=None, dtype=None):
-    """``(U, A, ...)``: table ``name``: the index-matched table's orders >= 2 (``eta`` None), or every order behind a
-    dielectric boundary of relative index ``eta`` (a scalar, may be traced), linear in ``eta`` between the dielectric
-    table's nodes and held beyond; in ``dtype`` (None: the table's)."""
+    """``((U, A, ...), mus)``: table ``name`` and its incidence nodes: the index-matched table's orders >= 2 (``eta``
+    None), or every order behind a dielectric boundary of relative index ``eta`` (a scalar, may be traced), linear in
+    ``eta`` between the dielectric table's nodes and held beyond; in ``dtype`` (None: the table's)."""
     from jaxsss.render.dielectric_current import load_dielectric_current_table
     from jaxsss.render.passage import node_interval
 
     if eta is None:
-        return jnp.asarray(load_exit_current_table()[name], dtype)
+        tab = load_exit_current_table()
+        return jnp.asarray(tab[name], dtype), tuple(tab["mus"])
     tab = load_dielectric_current_table()
     nodes = jnp.asarray(tab[name], dtype)
     i, t = node_interval(jnp.asarray(eta, nodes.dtype), tab["eta"])
     # Linear in eta between the nodes.
-    return (1.0 - t) * nodes[i] + t * nodes[i + 1]
+    return (1.0 - t) * nodes[i] + t * nodes[i + 1], tuple(tab["mus"])
 
 
 def _node_rows(name: str, mus, albedo, eta=None):
@@ -180,11 +181,8 @@ def _node_rows(name: str, mus, albedo, eta=None):
     in the albedos ``(C,)``."""
     from jaxsss.render.exit_distance import node_rows
 
-    from jaxsss.render.dielectric_current import load_dielectric_current_table
-
-    table = _table(name, eta, jnp.result_type(albedo, 0.0))
-    nodes = (load_exit_current_table() if eta is None else load_dielectric_current_table())["mus"]
-    return node_rows(table, tuple(nodes), CURRENT_ALBEDO, mus, albedo, "exit_current (the exit's current)")
+    table, nodes = _table(name, eta, jnp.result_type(albedo, 0.0))
+    return node_rows(table, nodes, CURRENT_ALBEDO, mus, albedo, "exit_current (the exit's current)")
 
 
 def current_amplitude(albedo, eta=None) -> jnp.ndarray:
