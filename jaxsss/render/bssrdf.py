@@ -67,8 +67,10 @@ in Mitsuba by scaling the coefficients). Each pair's profile is multiplied by th
 ratio at the pair's curvature, estimated from the two normals (:mod:`jaxsss.render.curvature`; octree nodes carry
 their area-weighted mean normal, :attr:`jaxsss.render.renderer.Prepared.ent_normal`), interpolated with the profile
 from a table made once per image (:func:`white_kernel`, ``curvature=True``). The ratio is capped at a radius of
-6.7 ``l_u`` at an index-matched boundary (:data:`jaxsss.render.curvature.KAPPA_MAX_ZR`; the marched kernels lit from
-behind: 3.3 ``l_u`` with transport's far part, :mod:`jaxsss.render.curvature_correction`); behind a dielectric
+6.7 ``l_u`` at an index-matched boundary (:data:`jaxsss.render.curvature.KAPPA_MAX_ZR`); the marched kernels' orders
+>= 2 take transport's correction ``Q`` of it (:mod:`jaxsss.render.curvature_correction`): from the light's side its
+near part, ``min(Q, 1)``, capped at 5 ``l_u`` (:data:`jaxsss.render.curvature_correction.KAPPA_MAX_NEAR`), lit from
+behind its far part, ``max(Q, 1)``, capped at 3.3 ``l_u``; behind a dielectric
 boundary at 1.47 ``l_u`` with transport's near part, ``min(Q, 1)`` of Fresnel walks
 (:mod:`jaxsss.render.dielectric_correction`). The dipole kernel stays flat (it is the pre-issue-17 renderer).
 
@@ -1067,8 +1069,10 @@ def white_kernel(medium: Medium, sources: WhiteSources, mus: tuple = (1.0,) + KE
     alone behind a dielectric boundary): the sums carry each node's current too, three rows of ``a(d)`` times the
     pair's tangential direction from the node's entry (:mod:`jaxsss.render.exit_current`; behind the boundary the
     Fresnel walks' table, :mod:`jaxsss.render.dielectric_current`). ``curvature_transport`` (with ``curvature`` and
-    ``first_order``): the curvature ratio times its transport correction ``Q``, capped at the correction table's
-    smallest sphere (:mod:`jaxsss.render.curvature_correction`). ``oblique_azimuth`` (with ``curvature_transport`` and
+    ``first_order``; lights behind): the curvature ratio times the far part of its transport correction, ``max(Q,
+    1)``, capped at the correction table's smallest sphere (:mod:`jaxsss.render.curvature_correction`); without it a
+    kernel with ``curvature`` and ``first_order`` takes the near part, ``min(Q, 1)``, capped at 5 ``l_u``
+    (:data:`jaxsss.render.curvature_correction.KAPPA_MAX_NEAR`). ``oblique_azimuth`` (with ``curvature_transport`` and
     ``shift``): the oblique nodes' far pairs times ``G (1 + B cos phi + B_2 cos 2 phi)``
     (:mod:`jaxsss.render.oblique_azimuth`)."""
     from jaxsss.mc.white_family import load_white_family
@@ -1142,7 +1146,7 @@ def white_kernel(medium: Medium, sources: WhiteSources, mus: tuple = (1.0,) + KE
     if not curvature:
         return kernel
     return eqx.tree_at(lambda k: k.curvature, kernel,
-                       _curvature_table(kernel, medium, tuple(mus), curvature_transport, sources.n),
+                       _curvature_table(kernel, medium, tuple(mus), curvature_transport, sources.n, first_order),
                        is_leaf=lambda x: x is None)
 
 
@@ -1189,13 +1193,16 @@ def multiple_orders(kernel: WhiteKernel, medium: Medium, mus: tuple) -> WhiteKer
 
 @eqx.filter_jit
 def _curvature_table(kernel: WhiteKernel, medium: Medium, mus: tuple, transport: bool = False,
-                     n: float = 1.0) -> tuple:
+                     n: float = 1.0, first_order: bool = False) -> tuple:
     """:attr:`WhiteKernel.curvature` for ``kernel``'s profiles of ``medium`` at incidence cosines ``mus``.
-    ``transport`` (the marched kernels' orders >= 2): the diffusion ratio times its transport correction ``Q``, capped
-    at the correction table's smallest sphere (:mod:`jaxsss.render.curvature_correction`). Behind a dielectric
+    ``transport`` (the marched kernels' orders >= 2 lit from behind): the diffusion ratio times the far part of its
+    transport correction, ``max(Q, 1)``, capped at the correction table's smallest sphere
+    (:mod:`jaxsss.render.curvature_correction`); without it, ``first_order`` (the marched kernels' orders >= 2 lit from
+    the camera's side): times the near part, ``min(Q, 1)``, capped at
+    :data:`jaxsss.render.curvature_correction.KAPPA_MAX_NEAR`. Behind a dielectric
     boundary (a concrete relative index ``n != 1``, every order): capped at the Fresnel table's smallest sphere, times
     ``min(Q, 1)`` of its walks (:mod:`jaxsss.render.dielectric_correction`)."""
-    from jaxsss.render.curvature_correction import KAPPA_MAX_MARCHED, log_correction_table
+    from jaxsss.render.curvature_correction import KAPPA_MAX_MARCHED, KAPPA_MAX_NEAR, log_correction_table
     from jaxsss.render.dielectric_correction import KAPPA_MAX_DIELECTRIC, dielectric_log_correction_table
 
     c = kernel.sigma_s.shape
@@ -1208,17 +1215,21 @@ def _curvature_table(kernel: WhiteKernel, medium: Medium, mus: tuple, transport:
     n_grid = kernel.log_R.shape[1]
     r = GRID_RHO_MIN * 10.0 ** (jnp.arange(n_grid) / GRID_PER_DECADE)[:, None] / kernel.sigma_s  # (G, C) mm
     dielectric = float(n) != 1.0
-    kappa_max = KAPPA_MAX_DIELECTRIC if dielectric else KAPPA_MAX_MARCHED if transport else KAPPA_MAX_ZR
+    near = first_order and not (transport or dielectric)
+    kappa_max = (KAPPA_MAX_DIELECTRIC if dielectric else KAPPA_MAX_MARCHED if transport else KAPPA_MAX_NEAR if near
+                 else KAPPA_MAX_ZR)
     # log(R C) on the grid x the curvature nodes, (K, G, N, C); its bilinear coefficients per cell.
     f = kernel.log_R[:, :, None, :] + log_ratio_table(r, sigma_a, sigma_s_prime, A, depth, kappa_max)
-    if transport or dielectric:
+    if transport or dielectric or near:
         # C Q: Q, transport's pencil beam on a sphere over the renderer's model of it, at the nodes' curvature in l_u.
         u = 1.0 - (1.0 - jnp.linspace(0.0, 1.0, N_KAPPA)) ** 2
         kappa_lu = u[:, None] * kappa_cap(r, sigma_t_prime, kappa_max)[:, None, :] / sigma_t_prime  # (G, N, C)
         coordinates = (r * sigma_t_prime, kappa_lu, mus, sigma_s_prime / sigma_t_prime)
         if dielectric:  # the near part (Q < 1) of the Fresnel walks
             f = f + jnp.minimum(dielectric_log_correction_table(*coordinates, float(n)), 0.0)
-        else:  # the far part (Q > 1) of the index-matched orders >= 2
+        elif near:  # the near part (Q < 1) of the index-matched orders >= 2, lit from the camera's side
+            f = f + jnp.minimum(log_correction_table(*coordinates), 0.0)
+        else:  # the far part (Q > 1) of the index-matched orders >= 2, lit from behind
             f = f + jnp.maximum(log_correction_table(*coordinates), 0.0)
     f00, f10, f01, f11 = f[:, :-1, :-1], f[:, 1:, :-1], f[:, :-1, 1:], f[:, 1:, 1:]
     coefficients = jnp.stack([f00, f10 - f00, f01 - f00, f11 - f10 - f01 + f00], axis=-1).reshape(-1, 4)

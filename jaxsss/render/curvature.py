@@ -68,7 +68,9 @@ gain on a sphere only a few transport lengths across is too large for the orders
 the geometry, :mod:`jaxsss.render.first_order`): against Mitsuba, chicken1's red and green (``a = 3.3`` and ``5.7
 l_u``) and ketchup's red (``4.9 l_u``) were 2.6-3.5% too bright in sum at 0.25, and within 2.3% at 0.15; media with
 ``l_u`` under a seventh of the radius do not reach the cap (docs/path_tracer.md, "The curvature cap, re-measured with
-the first order marched")."""
+the first order marched"). Since 2026-12-02 it is the cap of the index-matched kernels without the first
+order marched (``g > 0``, skies): the marched ones take transport's correction with caps of their own
+(:data:`jaxsss.render.curvature_correction.KAPPA_MAX_NEAR` from the light's side, ``KAPPA_MAX_MARCHED`` behind)."""
 DEPTH_MIN = 0.05
 """The shallowest source the ratio places, in units of ``l_u``: a source on the surface itself would make both dipoles
 singular at ``d = 0`` (the nodes' own depths are at least 0.1)."""

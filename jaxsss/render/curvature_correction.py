@@ -29,8 +29,13 @@ Where it is used: with every light behind the object (the scene plan's ``exit az
 moves to the table's smallest sphere (:data:`KAPPA_MAX_MARCHED`). Its near part (``Q < 1``) is left out: without an
 azimuth about the entry (the shifted profile has too little light ahead of it) it takes light from the terminator,
 which is already short; with it the back-lit skin1 sphere was 0.227 / 0.239 / 0.219 per pixel against 0.211 / 0.214 /
-0.208 (docs/path_tracer.md). From the light's side neither part is used: the terminator's short exitance there stands
-in for the exit's missing azimuth, and ``Q`` would undo it (chicken1 0.034 -> 0.090 in red). The other kernels at
+0.208 (docs/path_tracer.md). From the light's side the near part is used (:func:`jaxsss.render.bssrdf.white_kernel`
+with ``first_order`` and not ``curvature_transport``), with the cap at 5 ``l_u`` (:data:`KAPPA_MAX_NEAR`): on a small
+sphere transport carries light from the lit side round to the far one, which the diffusion ratio keeps near the entry
+(the 8 mm skin1 sphere, 6.2 / 8.4 / 11.9 ``l_u`` in radius, was 6.2 / 4.7 / 2.3% too bright in sum against Mitsuba
+without it, 4.1 / 3.0 / 1.5% with it; docs/path_tracer.md, "Transport's near part from the light's side"). The far part
+is left out there: the terminator's short exitance stands in for the exit's missing azimuth, and ``Q`` would undo it
+(chicken1 0.034 -> 0.090 in red). The other kernels at
 ``eta = 1`` (``g > 0``, skies) keep the capped diffusion ratio; behind a dielectric boundary the near part of Fresnel
 walks' ``Q`` is used (:mod:`jaxsss.render.dielectric_correction`).
 
@@ -47,8 +52,8 @@ import jax.numpy as jnp
 import numpy as np
 
 __all__ = ["CORRECTION_ALBEDO", "CORRECTION_D", "CORRECTION_D_EDGES", "CORRECTION_KAPPA", "CORRECTION_MUS",
-           "CORRECTION_RADII", "KAPPA_MAX_MARCHED", "fit_curvature_correction", "generate_curvature_correction",
-           "load_curvature_correction", "log_correction_table"]
+           "CORRECTION_RADII", "KAPPA_MAX_MARCHED", "KAPPA_MAX_NEAR", "fit_curvature_correction",
+           "generate_curvature_correction", "load_curvature_correction", "log_correction_table"]
 
 CORRECTION_MUS = (1.0, 0.75, 0.5, 0.1)
 """Incidence cosines of the table: the white-oblique kernel's nodes (1 and :data:`jaxsss.render.bssrdf.KERNEL_MUS`)
@@ -65,7 +70,16 @@ beam's walk at 11 ``l_u``, and 28% short of Mitsuba on its far dark side lit fro
 CORRECTION_KAPPA = (0.0,) + tuple(1.0 / a for a in CORRECTION_RADII)
 """Curvature nodes ``kappa l_u`` (0: the plane, where ``Q = 1``; linear between, held beyond ``1 / 3.3``)."""
 KAPPA_MAX_MARCHED = CORRECTION_KAPPA[-1]
-"""The marched kernels' cap on the curvature, in units of ``sigma_t'``: the table's smallest sphere."""
+"""The marched kernels' cap on the curvature lit from behind, in units of ``sigma_t'``: the table's smallest sphere."""
+KAPPA_MAX_NEAR = 0.2
+"""The marched kernels' cap on the curvature from the light's side, with ``Q``'s near part (units of ``sigma_t'``: a
+sphere of 5 ``l_u``). A smaller sphere's pairs take the ratio and ``Q`` of one of 5 ``l_u``; its light runs round to
+the far side, which the kernel without ``Q``'s far part does not carry, and holding the near part there keeps the lit
+side's light. Chosen on the committed references' sums (red, the channel past it): chicken1 (3.3 ``l_u``) and ketchup
+(4.9 ``l_u``) on the 20 mm sphere were 0.967 and 0.976 at the ratio's cap (6.7 ``l_u``,
+:data:`jaxsss.render.curvature.KAPPA_MAX_ZR`), 1.026 and 1.001 at the table's smallest sphere (3.3 ``l_u``), and
+0.987 and 0.998 here. Below the table's range the model has no transport in it: on held-out 8 and 12 mm spheres
+chicken1's red (2 ``l_u``) was 5.6% short in sum, chicken2's green (2.7 ``l_u``) 1.4% bright (docs/path_tracer.md)."""
 CORRECTION_D_EDGES = np.array([0.0, 0.25, 0.5, 0.75, 1.0, 1.5, 2.0, 2.5, 3.0, 4.0, 5.0, 6.0, 7.0, 8.0, 10.0, 12.0,
                                14.0, 17.0, 20.0, 24.0, 28.0, 33.0, 40.0, 50.0])
 """Chord bins of the walks' tallies, transport lengths (a sphere's chords end at ``2 a``)."""

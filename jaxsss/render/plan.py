@@ -453,7 +453,8 @@ def _first_order(scene, kernel: str, indirect: bool) -> tuple[bool, str]:
         return False, f"the texture scales the profiles' entry only; {kept}"
     why = ("marched along each view ray inside, the light's path to each point traced (eta = 1, g = 0); the white "
            "profiles keep orders >= 2 and leave by Chandrasekhar's multiple-scattering exit, less grazing where the "
-           "surface curves (jaxsss.render.exit_curvature)")
+           "surface curves (jaxsss.render.exit_curvature), with the curvature ratio corrected by transport "
+           "(jaxsss.render.curvature_correction: from the light's side its near part, to 5 l_u)")
     if indirect:
         why += ("; the indirect light (occluders' or the object's own bounce) is not marched: it enters the orders "
                 ">= 2 with its first order's share of the light "

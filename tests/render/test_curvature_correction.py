@@ -1,6 +1,6 @@
 """The curvature ratio's transport correction (jaxsss.render.curvature_correction): the table against fresh walks,
-shapes, bad and extreme input, invariants (1 on the plane, the kernel unchanged on coplanar pairs, the far part
-only) and autodiff."""
+shapes, bad and extreme input, invariants (1 on the plane, the kernels unchanged on coplanar pairs, the near part
+from the light's side and the far part from behind) and autodiff."""
 
 import jax
 import jax.numpy as jnp
@@ -10,8 +10,8 @@ import pytest
 from jaxsss.medium import Medium
 from jaxsss.render.bssrdf import white_kernel, white_tables
 from jaxsss.render.curvature_correction import (CORRECTION_ALBEDO, CORRECTION_D, CORRECTION_D_EDGES, CORRECTION_KAPPA,
-                                                CORRECTION_MUS, CORRECTION_RADII, KAPPA_MAX_MARCHED, _tally,
-                                                load_curvature_correction, log_correction_table, renderer_model)
+                                                CORRECTION_MUS, CORRECTION_RADII, KAPPA_MAX_MARCHED, KAPPA_MAX_NEAR,
+                                                _tally, load_curvature_correction, log_correction_table, renderer_model)
 from tests.gradcheck import assert_grad_matches_fd
 from tests.render.kernel_calls import kernel_pair, kernel_sources
 
@@ -76,32 +76,48 @@ def test_shapes_bad_and_extreme_input():
         white_kernel(medium, sources, mus, shift=True, first_order=True, curvature_transport=True)
 
 
-def test_the_kernel_keeps_the_plane_and_raises_the_far_field():
-    """Invariants: on coplanar pairs (``kappa = 0``) the corrected kernel is the plain one; on a sphere of 5 ``l_u``
-    it is within 10% of the plain (capped) kernel near the entry and well above it on the far side (``max(Q, 1)``:
-    transport carries light round the sphere)."""
+def test_the_kernels_keep_the_plane_lower_the_near_field_and_raise_the_far_field():
+    """Invariants: on coplanar pairs (``kappa = 0``) both corrected kernels are the flat one (``Q = 1``); on a sphere of
+    5 ``l_u`` (both caps' or under) the light's-side kernel (``min(Q, 1)``) is at most the one lit from behind
+    (``max(Q, 1)``) near the entry and within the table's 30% there (0.75 at grazing incidence), and the latter well
+    above it on the far side (transport carries light round the sphere); on a sphere of 4 ``l_u``, past :data:`KAPPA_MAX_NEAR`, the light's-side
+    kernel is the 5 ``l_u`` sphere's at the same chord."""
     mus, sources = white_tables(0.0, 1.0, True)
     medium = Medium(sigma_a=jnp.array([0.02]), sigma_s_prime=jnp.array([0.98]), eta=1.0)
     common = dict(shift=True, curvature=True, first_order=True)
-    plain = white_kernel(medium, sources, mus, **common)
-    corrected = white_kernel(medium, sources, mus, curvature_transport=True, **common)
+    near = white_kernel(medium, sources, mus, **common)
+    far = white_kernel(medium, sources, mus, curvature_transport=True, **common)
+    flat_kernel = white_kernel(medium, sources, mus, shift=True, first_order=True)
     k = len(mus)
     flux = jnp.ones((3, 4, k, 1)).at[:, 1:4].set(0.0)
     up = jnp.tile(jnp.array([[0.0, 0.0, 1.0]]), (3, 1))
     flat = jnp.array([[0.5, 0.0, 0.0], [2.0, 1.0, 0.0], [6.0, 0.0, 0.0]])
-    np.testing.assert_allclose(np.asarray(kernel_pair(corrected, flat, kernel_sources(corrected, flux), (up, up))),
-                               np.asarray(kernel_pair(plain, flat, kernel_sources(plain, flux), (up, up))), rtol=1e-10)
+    plane = np.asarray(kernel_pair(flat_kernel, flat, kernel_sources(flat_kernel, flux)))
+    for kernel in (near, far):
+        np.testing.assert_allclose(np.asarray(kernel_pair(kernel, flat, kernel_sources(kernel, flux), (up, up))), plane,
+                                   rtol=1e-10)
+
+    def on_sphere(kernel, radius, theta_deg):
+        theta = np.radians(theta_deg)
+        x = np.stack([np.sin(theta), np.zeros_like(theta), np.cos(theta)], axis=1)
+        p = np.tile([[0.0, 0.0, 1.0]], (len(theta), 1))
+        return np.asarray(kernel_pair(kernel, jnp.asarray(radius * (x - p)), kernel_sources(kernel, flux),
+                                      (jnp.asarray(x), jnp.asarray(p))))
+
     # Pairs on a sphere of radius 5 mm (5 l_u) at central angles 10, 60 and 150 degrees.
-    theta = np.radians([10.0, 60.0, 150.0])
-    x = np.stack([np.sin(theta), np.zeros(3), np.cos(theta)], axis=1)
-    p = np.tile([[0.0, 0.0, 1.0]], (3, 1))
-    normals = (jnp.asarray(x), jnp.asarray(p))
-    delta = jnp.asarray(5.0 * (x - p))
-    capped = white_kernel(medium, sources, mus, **common)
-    a = np.asarray(kernel_pair(capped, delta, kernel_sources(capped, flux), normals))
-    b = np.asarray(kernel_pair(corrected, delta, kernel_sources(corrected, flux), normals))
-    np.testing.assert_allclose(b[0], a[0], rtol=0.1)
+    a, b = on_sphere(near, 5.0, [10.0, 60.0, 150.0]), on_sphere(far, 5.0, [10.0, 60.0, 150.0])
+    assert np.all(a[0] <= b[0] * (1 + 1e-12)) and np.all(a[0] >= 0.7 * b[0]), (a[0], b[0])
+    assert np.any(a[0] < 0.97 * b[0]), (a[0], b[0])
     assert np.all(b[2] > 1.3 * a[2])
+    # The same chords (0.87, 5 and 7.7 mm) on a sphere of 4 l_u: the near kernel holds the curvature at 5 l_u.
+    angles = np.array([10.0, 60.0, 100.0])
+    chords = 2.0 * 5.0 * np.sin(np.radians(angles / 2.0))
+    np.testing.assert_allclose(on_sphere(near, 4.0, np.degrees(2.0 * np.arcsin(chords / 8.0))),
+                               on_sphere(near, 5.0, angles), rtol=1e-9)
+    # ... and a sphere of 6 l_u, under the cap (and past the diffusion ratio's 6.7), its own.
+    six = on_sphere(near, 6.0, np.degrees(2.0 * np.arcsin(chords / 12.0)))
+    assert np.max(np.abs(six / on_sphere(near, 5.0, angles) - 1.0)) > 1e-2
+    assert KAPPA_MAX_NEAR == pytest.approx(0.2) and KAPPA_MAX_MARCHED > KAPPA_MAX_NEAR
 
 
 def test_gradients_match_finite_differences():
