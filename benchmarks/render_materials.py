@@ -7,7 +7,9 @@ whose references are tests. This benchmark measures the rest on spheres, with th
 cream, potato, skim milk, whole milk and skin2 (20 mm and 8 mm), skin1 on an 8 mm sphere, and skin1 lit from behind
 (the camera looks at the terminator from the dark side: the renderer's largest known error, docs/path_tracer.md,
 "Two errors that cancel at the terminator"), and skin1 under a key light in front and that rim light behind (the two
-sides summed apart). Every sphere is index-matched (eta 1) under one point light, 64 x 64.
+sides summed apart), and small spheres lit from the camera's side (potato, chicken2 and ketchup on 8 mm, skin1 and
+chicken1 on 12 mm: 1.7 to 18 transport lengths in radius). Every sphere is index-matched (eta 1) under one point
+light, 64 x 64.
 
 Spectralon is left out: its transport length is 0.05-0.09 mm, so a path in a 20 mm sphere scatters about 1e5 times,
 and a Mitsuba reference at thousands of spp would take days on this machine.
@@ -64,9 +66,11 @@ NAME = "render_materials"
 REFERENCE_SPP = {"apple_sphere": 4096, "chicken2_sphere": 4096, "cream_sphere": 4096, "potato_sphere": 4096,
                  "skimmilk_sphere": 4096, "wholemilk_sphere": 4096, "skin2_sphere": 4096, "skin2_sphere_8mm": 4096,
                  "skin1_sphere_8mm": 4096, "skin1_sphere_backlit": 32768, "skin1_sphere_keyrim": 16384,
-                 "chicken1_sphere_backlit": 16384}
+                 "chicken1_sphere_backlit": 16384, "potato_sphere_8mm": 8192, "chicken2_sphere_8mm": 8192,
+                 "ketchup_sphere_8mm": 8192, "skin1_sphere_12mm": 8192, "chicken1_sphere_12mm": 8192}
 """The scenes and their reference's spp (skin1 lit from behind at 8x: its lit pixels are few and dim; chicken1 lit from
-behind and the key and rim lit one at 4x, for the dark side and the rim)."""
+behind and the key and rim lit one at 4x, for the dark side and the rim; the five small spheres added on 2026-12-02,
+lit from the camera's side at 2x)."""
 SCENES = tuple(REFERENCE_SPP)
 CONFIG = {"quick": {"mitsuba_spp": (4, 16, 64)}, "full": {"mitsuba_spp": (16, 64, 256, 1024)}}
 ALBEDO_GOAL = 0.9
