@@ -1187,7 +1187,11 @@ def multiple_orders(kernel: WhiteKernel, medium: Medium, mus: tuple) -> WhiteKer
     # Plane integrals on the grid: int 2 pi rho^2 R dlog(rho).
     w = jnp.asarray(2.0 * np.pi * rho**2 * math.log(10.0) / GRID_PER_DECADE)[None, :, None]
     r2 = jnp.maximum(r - r1, MULTIPLE_FLOOR * r)
-    r2 = r2 * share * jnp.sum(w * r, axis=1, keepdims=True) / jnp.sum(w * r2, axis=1, keepdims=True)
+    # Both integrals over each node's peak (a constant): at albedo 1e-6 the profiles are ~1e-300 and the quotient's
+    # derivative, over the integral squared, was NaN.
+    peak = jax.lax.stop_gradient(jnp.max(r, axis=1, keepdims=True))
+    peak = jnp.where(peak > 0, peak, 1.0)
+    r2 = r2 * share * jnp.sum(w * r / peak, axis=1, keepdims=True) / jnp.sum(w * r2 / peak, axis=1, keepdims=True)
     return dataclasses.replace(kernel, log_R=_log(r2), profile_weighted_near=True)
 
 
