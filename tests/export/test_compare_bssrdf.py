@@ -26,6 +26,7 @@ from jaxsss.export.compare import compare_images, error_by_cos, pixel_geometry
 from jaxsss.render import load_scene, render
 
 REFERENCES = Path(__file__).parent / "references"
+MATERIALS = Path(__file__).parents[2] / "benchmarks" / "references" / "materials"
 # Achieved 2026-11-28 with the first order marched in the sphere and the white profiles' orders >= 2
 # (jaxsss.render.first_order; docs/path_tracer.md, "The first order in the object's geometry"): mare_lit 0.033 / 0.022 /
 # 0.022, band 0.064 / 0.042 / 0.047, sums 0.995 / 1.001 / 0.999. Before it, with the white kernels' base density 3 under
@@ -49,11 +50,12 @@ BAND_MAX = (0.076, 0.055, 0.056)
 SUM_TOL = (0.02, 0.02, 0.02)
 
 
-def reference(name: str):
-    """``(scene, image (H, W, 3), coverage (H, W))`` of the committed Mitsuba reference ``name``, float64."""
-    data = np.load(REFERENCES / f"{name}.npz")
+def reference(name: str, directory: Path = REFERENCES):
+    """``(scene, image (H, W, 3), coverage (H, W))`` of the committed Mitsuba reference ``name`` in ``directory``
+    (default the tests' own; :data:`MATERIALS`: the benchmark's), float64."""
+    data = np.load(directory / f"{name}.npz")
     image, coverage = data["image"].astype(np.float64), data["coverage"].astype(np.float64)
-    return load_scene(REFERENCES / f"{name}.toml"), image, coverage
+    return load_scene(directory / f"{name}.toml"), image, coverage
 
 
 @pytest.fixture(scope="module")
@@ -361,10 +363,7 @@ def test_skin1_on_a_small_sphere_lit_from_the_camera_side_against_its_path_trace
     diffusion's ratio alone (capped at 6.7 ``l_u``): 0.078 / 0.059 / 0.037, band 0.117 / 0.076 / 0.060, sums 1.062 /
     1.047 / 1.023, red +6 to +9% on the whole lit side. Bounds: the achieved level + 10% (the band's goal), and red's
     lit side (cos 0.3-0.9 to the light) within 6%."""
-    directory = Path(__file__).parents[2] / "benchmarks" / "references" / "materials"
-    scene = load_scene(directory / "skin1_sphere_8mm.toml")
-    data = np.load(directory / "skin1_sphere_8mm.npz")
-    ref, coverage = data["image"].astype(np.float64), data["coverage"].astype(np.float64)
+    scene, ref, coverage = reference("skin1_sphere_8mm", MATERIALS)
     result = render(scene)
     assert result.report["plan"]["first_order"] and not result.report["plan"]["exit_current"]
     pixels = pixel_geometry(scene)
@@ -396,14 +395,11 @@ def test_skin1_lit_from_behind_against_its_path_traced_reference():
     (docs/path_tracer.md, "The far dark side"). Without the oblique azimuth (stop 48): 0.211 / 0.214 / 0.208, band
     0.153 / 0.177 / 0.220, sums 0.853 / 0.887 / 0.913. With the current alone: 0.327 / 0.222 / 0.209. With neither:
     0.507 / 0.387 / 0.306, band 0.346 / 0.327 / 0.324, sums 0.660 / 0.781 / 0.856. Bounds: the achieved level + 10%."""
-    directory = Path(__file__).parents[2] / "benchmarks" / "references" / "materials"
-    scene = load_scene(directory / "skin1_sphere_backlit.toml")
-    data = np.load(directory / "skin1_sphere_backlit.npz")
+    scene, ref, coverage = reference("skin1_sphere_backlit", MATERIALS)
     result = render(scene)
     azimuth = next(i for i in result.report["plan"]["items"] if i["name"] == "exit azimuth")
     assert azimuth["included"] and azimuth["reason"].startswith("WARNING") and result.report["plan"]["exit_current"]
-    m = compare_images(result.image, data["image"].astype(np.float64), pixel_geometry(scene),
-                       coverage=data["coverage"].astype(np.float64))
+    m = compare_images(result.image, ref, pixel_geometry(scene), coverage=coverage)
     assert np.all(np.array(m["mare_lit"]) <= (0.088, 0.044, 0.057)), m["mare_lit"]
     assert np.all(np.array(m["mare_band"]) <= (0.033, 0.040, 0.052)), m["mare_band"]
     assert np.all(np.array(m["sum_ratio"]) >= (0.96, 0.97, 0.96)), m["sum_ratio"]
@@ -433,12 +429,10 @@ def test_chicken1_lit_from_behind_and_its_far_dark_side():
     red. Without the azimuth: 0.176 / 0.308 / 0.283, band 0.034 / 0.073 / 0.136, the far side -0.12; with the antipode's
     bin dropped and six radii as well (stop 48): 0.248 / 0.305 / 0.283, sums 0.826 / 0.827 / 0.855, the far side -0.28.
     Green and blue miss the goals (the dark side's exitance, docs/path_tracer.md). Bounds: the achieved level + 10%."""
-    directory = Path(__file__).parents[2] / "benchmarks" / "references" / "materials"
-    scene = load_scene(directory / "chicken1_sphere_backlit.toml")
-    data = np.load(directory / "chicken1_sphere_backlit.npz")
+    scene, ref, coverage = reference("chicken1_sphere_backlit", MATERIALS)
     result = render(scene)
     assert result.report["plan"]["exit_current"]
-    ref, coverage, pixels = data["image"].astype(np.float64), data["coverage"].astype(np.float64), pixel_geometry(scene)
+    pixels = pixel_geometry(scene)
     m = compare_images(result.image, ref, pixels, coverage=coverage)
     assert np.all(np.array(m["mare_lit"]) <= (0.171, 0.085, 0.188)), m["mare_lit"]
     assert np.all(np.array(m["mare_band"]) <= (0.104, 0.019, 0.112)), m["mare_band"]
@@ -460,13 +454,10 @@ def test_skin1_under_a_key_and_a_rim_light_against_its_path_traced_reference():
     0.038 / 0.029 / 0.028, band 0.067 / 0.068 / 0.079; both terms left out, stop 47's plan for such a scene: 0.063 /
     0.038 / 0.032, band 0.118 / 0.105 / 0.103; both on every light: 0.049 / 0.034 / 0.030). Bounds: the achieved level
     + 10%, the sums within the goal's 3%."""
-    directory = Path(__file__).parents[2] / "benchmarks" / "references" / "materials"
-    scene = load_scene(directory / "skin1_sphere_keyrim.toml")
-    data = np.load(directory / "skin1_sphere_keyrim.npz")
+    scene, ref, coverage = reference("skin1_sphere_keyrim", MATERIALS)
     result = render(scene)
     assert tuple(result.report["plan"]["current_lights"]) == (False, True)
-    m = compare_images(result.image, data["image"].astype(np.float64), pixel_geometry(scene),
-                       coverage=data["coverage"].astype(np.float64))
+    m = compare_images(result.image, ref, pixel_geometry(scene), coverage=coverage)
     assert np.all(np.array(m["mare_lit"]) <= (0.034, 0.026, 0.026)), m["mare_lit"]
     assert np.all(np.array(m["mare_band"]) <= (0.054, 0.048, 0.052)), m["mare_band"]
     assert np.all(np.abs(np.array(m["sum_ratio"]) - 1.0) <= 0.03), m["sum_ratio"]

@@ -80,8 +80,8 @@ def test_the_kernels_keep_the_plane_lower_the_near_field_and_raise_the_far_field
     """Invariants: on coplanar pairs (``kappa = 0``) both corrected kernels are the flat one (``Q = 1``); on a sphere of
     5 ``l_u`` (both caps' or under) the light's-side kernel (``min(Q, 1)``) is at most the one lit from behind
     (``max(Q, 1)``) near the entry and within the table's 30% there (0.75 at grazing incidence), and the latter well
-    above it on the far side (transport carries light round the sphere); on a sphere of 4 ``l_u``, past :data:`KAPPA_MAX_NEAR`, the light's-side
-    kernel is the 5 ``l_u`` sphere's at the same chord."""
+    above it on the far side (transport carries light round the sphere); on a sphere of 4 ``l_u``, past
+    :data:`KAPPA_MAX_NEAR`, the light's-side kernel is the 5 ``l_u`` sphere's at the same chord."""
     mus, sources = white_tables(0.0, 1.0, True)
     medium = Medium(sigma_a=jnp.array([0.02]), sigma_s_prime=jnp.array([0.98]), eta=1.0)
     common = dict(shift=True, curvature=True, first_order=True)
