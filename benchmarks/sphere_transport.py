@@ -169,6 +169,73 @@ def sphere_walk(sigma_a: float, sigma_s: float, radius: float, light, intensity:
             "area": area}
 
 
+SUPERPOSE_MUS = (1.0, 0.9, 0.8, 0.7, 0.6, 0.5, 0.4, 0.3, 0.2, 0.1)
+"""Incidence cosines of the pencil beams :func:`pencil_superposition` walks; each entry takes the nearest."""
+
+
+def pencil_superposition(sigma_a: float, sigma_s: float, radius: float, light, intensity: float, photons: int, *,
+                         points: int = 60_000, queries: int = 50, seed: int = 11, mus=SUPERPOSE_MUS) -> np.ndarray:
+    """``(B, 2)``: the orders >= 2 exitance (W/mm^2) per light band (:data:`LIGHT_EDGES`) of pencil-beam walks
+    (:func:`jaxsss.render.walk.pencil_beam_walk` in the same sphere, ``photons`` per beam, index-matched, isotropic)
+    superposed over the point-lit sphere of :func:`sphere_walk`: each of ``points`` entries (uniform on the sphere)
+    carries ``E dA`` and spreads it as the beam of the nearest cosine in ``mus``, by chord
+    (:data:`jaxsss.render.curvature_correction.CORRECTION_D_EDGES` bins, linear between their centres), at ``queries``
+    points per band. Column 0: each beam's azimuthal mean about its entry (its ring, what the renderer's kernels are
+    fitted to); column 1: times ``1 + h_1 cos phi + h_2 cos 2 phi``, the beam's first two azimuthal harmonics about its
+    travel (``phi`` from the light's travel projected on the entry's tangent plane). Against :func:`sphere_walk` (the
+    same transport, walked whole) the two say how much of a band's light the azimuth about each entry moves: on the
+    8 mm potato sphere (5.5 ``l_u``, red) the rings put the lit centre at 1.32 of the whole walk and the harmonics at
+    1.06 (docs/path_tracer.md, "The lit side of small spheres")."""
+    from jaxsss.render.curvature_correction import CORRECTION_D, CORRECTION_D_EDGES
+    from jaxsss.render.oblique_azimuth import _tally
+
+    sigma_t = sigma_a + sigma_s
+    light = np.asarray(light, dtype=float)
+    bin_area = np.pi * (CORRECTION_D_EDGES[1:] ** 2 - CORRECTION_D_EDGES[:-1] ** 2)
+    beams = []
+    for k, mu in enumerate(mus):
+        t = _tally(sigma_s / sigma_t, float(mu), radius * sigma_t, photons, seed + k)
+        total = np.where(t[0] > 0, t[0], 1.0)
+        # Per unit incident power per mm^2, and the harmonics 2 <cos n phi> (0 at normal incidence: no travel).
+        beams.append((t[0] / bin_area * sigma_t**2, 2.0 * t[1] / total * (mu < 1.0), 2.0 * t[2] / total * (mu < 1.0)))
+    rng = np.random.default_rng(seed)
+    u = rng.normal(size=(points, 3))
+    u /= np.linalg.norm(u, axis=1, keepdims=True)
+    x = radius * u
+    to_light = light - x
+    r2 = np.sum(to_light * to_light, axis=1)
+    to_light /= np.sqrt(r2)[:, None]
+    cos = np.sum(u * to_light, axis=1)
+    lit = cos > 0.0
+    x, u, to_light, cos = x[lit], u[lit], to_light[lit], cos[lit]
+    power = intensity * cos / r2[lit] * 4.0 * np.pi * radius**2 / points  # E dA, W
+    travel = -(to_light - cos[:, None] * u)
+    travel /= np.maximum(np.linalg.norm(travel, axis=1, keepdims=True), 1e-300)
+    beam = np.argmin(np.abs(np.asarray(mus)[None, :] - cos[:, None]), axis=1)
+    v = rng.normal(size=(40 * queries * len(LIGHT_EDGES), 3))
+    v /= np.linalg.norm(v, axis=1, keepdims=True)
+    v_cos = v @ (light / np.linalg.norm(light))
+    out = np.zeros((len(LIGHT_EDGES) - 1, 2))
+    for b in range(len(LIGHT_EDGES) - 1):
+        q = radius * v[(v_cos >= LIGHT_EDGES[b]) & (v_cos < LIGHT_EDGES[b + 1])][:queries]
+        for k, (ring, h1, h2) in enumerate(beams):
+            sel = beam == k
+            if not sel.any():
+                continue
+            offset = q[:, None, :] - x[sel][None]
+            d = np.linalg.norm(offset, axis=2) * sigma_t
+            tangential = offset - np.sum(offset * u[sel][None], axis=2, keepdims=True) * u[sel][None]
+            cos_phi = np.sum(tangential * travel[sel][None], axis=2) / np.maximum(
+                np.linalg.norm(tangential, axis=2), 1e-300)
+            base = np.interp(d, CORRECTION_D, ring) * power[sel][None]
+            # The ring alone, and with the beam's two harmonics about its travel.
+            out[b, 0] += base.sum(axis=1).mean()
+            azimuth = (1.0 + np.interp(d, CORRECTION_D, h1) * cos_phi
+                       + np.interp(d, CORRECTION_D, h2) * (2.0 * cos_phi * cos_phi - 1.0))
+            out[b, 1] += (base * azimuth).sum(axis=1).mean()
+    return out
+
+
 def _scene(file: str, radius: float | None, position=None, eta: float | None = None):
     """The reference scene ``file`` with its sphere's ``radius`` (mm), its light's ``position`` (mm) and its material's
     ``eta`` replaced (None: kept): ``(scene, radius, light position, intensity)``."""
