@@ -129,7 +129,8 @@ def skin1_env_sky() -> np.ndarray:
 SKIES = {"skin1_sphere_env": ("skin1_sphere_env_sky.npy", skin1_env_sky),
          "skin1_sphere_env13": ("skin1_sphere_env_sky.npy", skin1_env_sky),
          "marble_sphere_env": ("skin1_sphere_env_sky.npy", skin1_env_sky),
-         "skin1_teapot_env": ("skin1_sphere_env_sky.npy", skin1_env_sky)}
+         "skin1_teapot_env": ("skin1_sphere_env_sky.npy", skin1_env_sky),
+         "g05_sphere_env14": ("skin1_sphere_env_sky.npy", skin1_env_sky)}
 """Environment maps of reference scenes, written next to their scene file before a reference is rendered."""
 
 

@@ -98,9 +98,12 @@ corrected by transport (:mod:`jaxsss.render.curvature_correction`). Behind a die
 ``"refracted-current"``, kept by the plan for every light): every order's exitance leaves by the refracted exit and its
 current by ``t_o Y(mu_o)`` of the Fresnel walks' table, with both signs (:mod:`jaxsss.render.dielectric_current`).
 
-Which kernel a scene gets is the scene plan's decision (:func:`choose_bssrdf`): ``white-oblique`` for every ``g <
-FORWARD_G`` and ``eta`` in the family's range, the dipole with its reason otherwise (``g >= FORWARD_G``, ``eta`` or
-``g`` outside the family, or per channel). The oblique tables are looked up by :func:`white_table` only.
+Which kernel a scene gets is the scene plan's decision (:func:`choose_bssrdf`): ``white-oblique`` wherever the
+family covers ``(g, eta)``, the dipole with its reason otherwise (``eta`` or ``g`` outside the family, or per channel).
+Until 2026-12-02 forward scattering (``g >= 0.5``) behind a dielectric boundary kept the dipole, a choice made from
+index-matched renders; against Mitsuba under a sky and a sphere light at ``eta = 1.4`` the dipole was 13-30% too bright
+in blue, the white kernels within 4.4% (docs/path_tracer.md, "Forward scattering behind a dielectric boundary"). The
+oblique tables are looked up by :func:`white_table` only.
 """
 
 from __future__ import annotations
@@ -219,14 +222,6 @@ KINKED_LIGHTS = ("point", "spot", "directional")
 """Light kinds whose irradiance has a kink at the terminator (:data:`WHITE_DENSITY_KINKED`)."""
 MEASURED_DG = 0.45
 """How far in ``g`` from its oblique sources the transfer of the oblique/normal ratio was measured (module docstring)."""
-FORWARD_G = 0.5
-"""``"auto"`` keeps the dipole from this ``g`` up at a dielectric boundary (``eta != 1``): there the white kernels'
-exit distribution is isotropic scattering's (:func:`refracted_exit_distribution`), and with it the oblique tables of
-a forward-scattering medium put forward-grazing light where the eye sees it. At ``eta = 1`` the white kernels exit
-by the forward-scattering table (:mod:`jaxsss.render.exit_direction`) and ``auto`` takes them for every ``g``:
-against Mitsuba's g09_sphere (g = 0.9) mare_lit 0.097 / 0.099 / 0.106 (most of it the reference's own noise), sums
-0.98, against the dipole's 0.152 / 0.160 / 0.173, sums 0.93 / 0.90 / 0.88 (with the isotropic exit: 0.36-0.51;
-docs/path_tracer.md, "Forward scattering's exit direction")."""
 PURE_ABSORBER_SCATTERING = 1e-9
 """The white kernels' floor on ``sigma_s' / sigma_a``: a medium that does not scatter (``sigma_s' = 0``, allowed) is
 profiled at this ratio, a diffuse radiance ~1e-20 of the light's, instead of NaN from its infinite optical unit."""
@@ -360,9 +355,8 @@ def choose_bssrdf(medium: Medium, request: str = "auto") -> tuple[str, str]:
     """``(kernel, reason)``: the BSSRDF kernel for ``medium`` and the plan's one-line reason.
 
     ``request`` is one of :data:`BSSRDFS`; ``"auto"`` takes ``white-oblique`` inside the white Monte Carlo family's
-    range (``g`` in [0, 0.95], ``eta`` in [1, 1.6]) except for ``g >= FORWARD_G`` at ``eta != 1``, and the dipole
-    otherwise. A white request outside the family's range is a ``ValueError`` naming the argument, its value and the
-    range."""
+    range (``g`` in [0, 0.95], ``eta`` in [1, 1.6]), and the dipole otherwise. A white request outside the family's
+    range is a ``ValueError`` naming the argument, its value and the range."""
     from jaxsss.mc.white_family import check_covered, covers
 
     if request not in BSSRDFS:
@@ -388,10 +382,11 @@ def choose_bssrdf(medium: Medium, request: str = "auto") -> tuple[str, str]:
                                 "(jaxsss.render.exit_direction, eta = 1)"),
                 "refracted": ("Chandrasekhar's exit distribution at the refracted cosines, through the Fresnel "
                               "boundary")}[exit_model_for(medium)]
-    if request == "auto" and g >= FORWARD_G and eta != 1.0:
-        return "dipole", (f"g = {g:g} >= {FORWARD_G:g} at eta = {eta:g}: the forward-scattering exit distribution "
-                          "is tabulated for an index-matched boundary only, and the isotropic one puts "
-                          "forward-grazing light where the eye sees it; the dipole plus single scattering")
+    if g > 0.0 and eta != 1.0:
+        # The forward-scattering exit (jaxsss.render.exit_direction) is tabulated at eta = 1 only.
+        exit_why += (" (isotropic scattering's: the forward-scattering exit is tabulated for an index-matched "
+                     "boundary only; at g 0.5 and 0.9, eta 1.4, under a sky and a sphere light within 4.4% of "
+                     "Mitsuba in sum, the dipole 13-30% too bright in blue)")
     boundary = "" if eta == 1.0 else f"; {DIELECTRIC_WHY}"
     if request in ("auto", "white-oblique"):
         return "white-oblique", (

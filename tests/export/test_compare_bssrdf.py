@@ -285,6 +285,16 @@ def test_skin1_teapot_under_a_sky_mirrors_itself():
     assert np.all(np.array(m["mare_lit"]) <= 0.07), m["mare_lit"]
 
 
+def _white_oblique_against(name: str):
+    """``(scene, reference (H, W, 3), coverage, pixels, image, metrics)``: the default render of the committed reference
+    ``name``, whose plan must take the white-oblique kernel, compared with it (:func:`compare_images`)."""
+    scene, ref, coverage = reference(name)
+    result = render(scene)
+    assert result.report["plan"]["bssrdf"] == "white-oblique"
+    pixels = pixel_geometry(scene)
+    return scene, ref, coverage, pixels, result.image, compare_images(result.image, ref, pixels, coverage=coverage)
+
+
 def test_forward_scattering_sphere_against_its_path_traced_reference():
     """g = 0.9 (sigma_s 10/mm, sigma_s' 1/mm, sigma_a 0.05 / 0.1 / 0.2) on the 20 mm sphere, eta 1, point light;
     Mitsuba 24576 spp (3322 s) whose own per-pixel noise is 4.8 / 5.1 / 5.6% (mare_lit of the reference against the
@@ -302,18 +312,33 @@ def test_forward_scattering_sphere_against_its_path_traced_reference():
     leaving at the cosine it entered by (stop 58, not kept) 0.070 / 0.072 / 0.075, sums 0.997 / 1.003 / 1.007, but
     +4.3 / +4.8 / +5.0% there. Bounds: the achieved level plus about 10%, the sum goal, and the dipole's sums failing
     it."""
-    scene, ref, coverage = reference("g09_sphere")
-    result = render(scene)
-    assert result.report["plan"]["bssrdf"] == "white-oblique"
-    pixels = pixel_geometry(scene)
-    m = compare_images(result.image, ref, pixels, coverage=coverage)
+    scene, ref, coverage, pixels, image, m = _white_oblique_against("g09_sphere")
     assert np.all(np.array(m["mare_lit"]) <= (0.081, 0.082, 0.084)), m["mare_lit"]
     assert np.all(np.array(m["mare_band"]) <= (0.20, 0.21, 0.20)), m["mare_band"]
     assert np.all(np.abs(np.array(m["sum_ratio"]) - 1.0) <= 0.03), m["sum_ratio"]
-    by_cos = error_by_cos(result.image, ref, pixels, coverage=coverage, edges=np.array([0.1, 0.3, 0.6, 0.9, 1.0]))
+    by_cos = error_by_cos(image, ref, pixels, coverage=coverage, edges=np.array([0.1, 0.3, 0.6, 0.9, 1.0]))
     assert all(b["n"] > 100 and np.all(np.abs(b["bias"]) <= 0.04) for b in by_cos), by_cos
     old = compare_images(render(scene, bssrdf="dipole").image, ref, pixels, coverage=coverage)
     assert np.any(np.abs(np.array(old["sum_ratio"]) - 1.0) > 0.03), old["sum_ratio"]
+
+
+def test_forward_scattering_behind_a_dielectric_boundary_under_a_sky():
+    """g = 0.5 (the g09 material's sigma_a and sigma_s') on the 20 mm sphere at eta 1.4 under skin1_sphere_env's sky;
+    Mitsuba 4096 spp (506 s), noise 5.8 / 6.2 / 6.6% per pixel, 1.3 / 1.4 / 1.4% in 4 x 4 blocks. The white kernels
+    with isotropic scattering's refracted exit (the forward-scattering exit is tabulated at eta = 1 only), auto's
+    choice since 2026-12-02. Achieved: mare_lit 0.063 / 0.068 / 0.073 (the reference's noise, mostly), 4 x 4 blocks
+    0.020 / 0.024 / 0.026, sums 1.005 / 1.005 / 0.997. The dipole plus single scattering, auto's choice before for g >=
+    0.5 at eta != 1: 4 x 4 0.043 / 0.085 / 0.244, sums 1.009 / 1.103 / 1.249 (held out the same day at 512 spp: g = 0.9
+    on the sphere and the teapot under the sky, and both g under a sphere light, the dipole's blue 13-30% bright in sum,
+    the white kernels within 0.1-4.4%; docs/path_tracer.md, "Forward scattering behind a dielectric boundary").
+    Bounds: the achieved blocks plus about 10%, the per-pixel noise plus 10%, the sum goal, and the dipole failing
+    it."""
+    scene, ref, coverage, pixels, _, m = _white_oblique_against("g05_sphere_env14")
+    assert np.all(np.array(m["mare_binned"]) <= (0.023, 0.027, 0.029)), m["mare_binned"]
+    assert np.all(np.array(m["mare_lit"]) <= (0.070, 0.075, 0.080)), m["mare_lit"]
+    assert np.all(np.abs(np.array(m["sum_ratio"]) - 1.0) <= 0.03), m["sum_ratio"]
+    old = compare_images(render(scene, bssrdf="dipole").image, ref, pixels, coverage=coverage)
+    assert np.any(np.abs(np.array(old["sum_ratio"]) - 1.0) > 0.2), old["sum_ratio"]
 
 
 def _assert_flat_face(name: str, *, n_binned: int, binned_max, sum_min):
