@@ -202,15 +202,12 @@ def pencil_superposition(sigma_a: float, sigma_s: float, radius: float, light, i
     u = rng.normal(size=(points, 3))
     u /= np.linalg.norm(u, axis=1, keepdims=True)
     x = radius * u
-    to_light = light - x
-    r2 = np.sum(to_light * to_light, axis=1)
-    to_light /= np.sqrt(r2)[:, None]
-    cos = np.sum(u * to_light, axis=1)
+    # The light's travel along the surface (the flow away from the light) is each beam's direction of travel.
+    _, cos, travel = _frame(x, light)
+    r2 = np.sum((light - x) ** 2, axis=1)
     lit = cos > 0.0
-    x, u, to_light, cos = x[lit], u[lit], to_light[lit], cos[lit]
+    x, u, travel, cos = x[lit], u[lit], travel[lit], cos[lit]
     power = intensity * cos / r2[lit] * 4.0 * np.pi * radius**2 / points  # E dA, W
-    travel = -(to_light - cos[:, None] * u)
-    travel /= np.maximum(np.linalg.norm(travel, axis=1, keepdims=True), 1e-300)
     beam = np.argmin(np.abs(np.asarray(mus)[None, :] - cos[:, None]), axis=1)
     v = rng.normal(size=(40 * queries * len(LIGHT_EDGES), 3))
     v /= np.linalg.norm(v, axis=1, keepdims=True)

@@ -371,7 +371,7 @@ def test_the_white_kernels_sample_densest_under_a_light_with_a_sharp_terminator(
     (0.0, 1.3, "white-oblique", "ratio of (g=0, n=1.33) x 1.00"),
     (0.3, 1.0, "white-oblique", "(g=0, n=1) x 0.67 and (g=0.9, n=1) x 0.33"),
     # Forward scattering behind a dielectric boundary: the white kernels too, with the isotropic refracted exit (until
-    # 2026-12-02 the dipole, 25-30% too bright in blue against Mitsuba; docs/path_tracer.md).
+    # 2026-12-02 the dipole, 13-30% too bright in blue against Mitsuba; docs/path_tracer.md).
     (0.5, 1.45, "white-oblique", "isotropic scattering's: the forward-scattering exit is tabulated for"),
     (0.9, 1.4, "white-oblique", "(g=0, n=1.4) x 1.00 (no oblique tables for this pair; the transfer is UNMEASURED"),
     # Index-matched forward scattering: the white kernels, exit by jaxsss.render.exit_direction.
