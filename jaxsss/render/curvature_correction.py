@@ -59,8 +59,12 @@ CORRECTION_MUS = (1.0, 0.75, 0.5, 0.1)
 """Incidence cosines of the table: the white-oblique kernel's nodes (1 and :data:`jaxsss.render.bssrdf.KERNEL_MUS`)
 and 0.75, the lights-behind kernel's (:data:`jaxsss.render.bssrdf.LIGHTS_BEHIND_MUS`); descending (the lookups take
 the shipped table's own ``mus``)."""
-CORRECTION_ALBEDO = (0.3, 0.6, 0.8, 0.9, 0.97, 0.995)
-"""Single-scattering albedos of the table (linear between, held beyond the ends)."""
+CORRECTION_ALBEDO = (0.3, 0.6, 0.8, 0.9, 0.97, 0.995, 0.999)
+"""Single-scattering albedos of the table, ascending (linear in ``sqrt(1 - albedo)`` between, held beyond the ends:
+:func:`jaxsss.render.exit_distance.node_rows`; the lookups take the shipped table's own ``albedo``). 0.999 joined on
+2026-12-02 (``--add-albedo``): the potato's red (0.9965) and apple's (0.9987), held at 0.995, took the far side of a
+20 mm sphere lit from behind 23% bright against Mitsuba (``Q`` at 0.995 is 14% over a walk's at 0.9965 near the
+antipode of a 7 ``l_u`` sphere)."""
 CORRECTION_RADII = tuple(round(3.3 * 1.224**k, 2) for k in range(10, -1, -1))
 """Sphere radii of the walks, transport lengths (``g = 0``: mean free paths): 24.91 down to 3.3, a ratio of 1.224
 between neighbours. ``Q`` is linear in the curvature between them at a fixed chord, and near a sphere's antipode it
@@ -132,9 +136,11 @@ def renderer_model(mu_i: float, albedo: float, radius: float, d=None, eta: float
 
 
 def fit_curvature_correction(sphere: np.ndarray, plane: np.ndarray, eta: float = 1.0,
-                             radii: tuple = CORRECTION_RADII, mus=CORRECTION_MUS) -> np.ndarray:
-    """``log Q`` ``(U, A, 1 + R, D)`` from the walks' tallies at the incidence nodes ``mus``, ``sphere`` ``(U, A, R, 2,
-    D)`` over ``radii`` (default :data:`CORRECTION_RADII`) and ``plane`` ``(U, A, 2, D)`` (light, photons): the walk's
+                             radii: tuple = CORRECTION_RADII, mus=CORRECTION_MUS,
+                             albedos=CORRECTION_ALBEDO) -> np.ndarray:
+    """``log Q`` ``(U, A, 1 + R, D)`` from the walks' tallies at the incidence nodes ``mus`` and ``albedos``, ``sphere``
+    ``(U, A, R, 2, D)`` over ``radii`` (default :data:`CORRECTION_RADII`) and ``plane`` ``(U, A, 2, D)`` (light,
+    photons): the walk's
     gain over the renderer's model (:func:`renderer_model`) per chord bin, 0 on the plane; held beyond the last bin
     with :data:`CORRECTION_MIN_COUNT` photons in both walks.
 
@@ -148,7 +154,7 @@ def fit_curvature_correction(sphere: np.ndarray, plane: np.ndarray, eta: float =
     e0, e1 = CORRECTION_D_EDGES[:-1], CORRECTION_D_EDGES[1:]
     log_q = np.zeros((n_u, n_a, n_r + 1, n_d))
     for k, mu in enumerate(float(m) for m in mus):
-        for j, albedo in enumerate(CORRECTION_ALBEDO):
+        for j, albedo in enumerate(float(a) for a in albedos):
             p = plane[k, j]
             for r, radius in enumerate(radii):
                 s = sphere[k, j, r]
@@ -167,18 +173,21 @@ def fit_curvature_correction(sphere: np.ndarray, plane: np.ndarray, eta: float =
 
 
 def generate_curvature_correction(photons: int = CORRECTION_PHOTONS, seed: int = 47, progress: bool = True,
-                                  mus=CORRECTION_MUS) -> dict:
-    """Run the walks (``mus``, default :data:`CORRECTION_MUS`, x :data:`CORRECTION_ALBEDO`, each on a half-space and
-    the spheres of :data:`CORRECTION_RADII`; seeds by each node's slot among :data:`CORRECTION_MUS`) and return the
-    table: ``log_q``, the tallies and metadata."""
+                                  mus=CORRECTION_MUS, albedos=CORRECTION_ALBEDO) -> dict:
+    """Run the walks (``mus``, default :data:`CORRECTION_MUS`, x ``albedos``, default :data:`CORRECTION_ALBEDO`, each
+    on a half-space and the spheres of :data:`CORRECTION_RADII`; seeds by each node's slot among
+    :data:`CORRECTION_MUS` and each albedo's among :data:`CORRECTION_ALBEDO`) and return the table: ``log_q``, the
+    tallies and metadata."""
     from jaxsss.render.walk import sphere_and_plane_tallies
 
     t0 = time.perf_counter()
     mus = tuple(float(m) for m in mus)
-    sphere, plane = sphere_and_plane_tallies(_tally, mus, CORRECTION_ALBEDO, CORRECTION_RADII, photons, seed,
-                                             "curvature correction", progress, table_mus=CORRECTION_MUS)
-    return {"log_q": fit_curvature_correction(sphere, plane, mus=mus), "sphere": sphere, "plane": plane,
-            "mus": np.asarray(mus), "albedo": np.asarray(CORRECTION_ALBEDO),
+    albedos = tuple(float(a) for a in albedos)
+    sphere, plane = sphere_and_plane_tallies(_tally, mus, albedos, CORRECTION_RADII, photons, seed,
+                                             "curvature correction", progress, table_mus=CORRECTION_MUS,
+                                             table_albedo=CORRECTION_ALBEDO)
+    return {"log_q": fit_curvature_correction(sphere, plane, mus=mus, albedos=albedos), "sphere": sphere,
+            "plane": plane, "mus": np.asarray(mus), "albedo": np.asarray(albedos),
             "radii": np.asarray(CORRECTION_RADII), "kappa": np.asarray(CORRECTION_KAPPA),
             "d": np.asarray(CORRECTION_D), "d_edges": CORRECTION_D_EDGES, "photons": photons, "seed": seed,
             "seconds": time.perf_counter() - t0,
@@ -192,21 +201,24 @@ def load_curvature_correction() -> dict:
     return load_table(CORRECTION_TABLE)
 
 
-def log_correction_table(r_lu, kappa_lu, mus, albedo, log_q=None, kappa=CORRECTION_KAPPA, table_mus=None):
+def log_correction_table(r_lu, kappa_lu, mus, albedo, log_q=None, kappa=CORRECTION_KAPPA, table_mus=None,
+                         table_albedo=None):
     """``(K, G, N, C)``: ``log Q`` at the distances ``r_lu`` ``(G, C)`` and curvatures ``kappa_lu`` ``(G, N, C)``
     (both in units of ``l_u``), for the incidence nodes ``mus`` (each one of :data:`CORRECTION_MUS`) and albedos
-    ``(C,)``: linear in the albedo, bilinear in (``kappa l_u``, ``d / l_u``) on the table's nodes, held beyond them.
-    Differentiable in ``albedo`` and the coordinates. ``log_q``: another table (default the shipped index-matched
-    one; :mod:`jaxsss.render.dielectric_correction`) on the curvature nodes ``kappa`` and incidence nodes ``table_mus``,
-    the same elsewhere."""
+    ``(C,)``: linear in ``sqrt(1 - albedo)`` (:func:`jaxsss.render.exit_distance.node_rows`), bilinear in (``kappa
+    l_u``, ``d / l_u``) on the table's nodes, held beyond them. Differentiable in ``albedo`` and the coordinates.
+    ``log_q``: another table (default the shipped index-matched one; :mod:`jaxsss.render.dielectric_correction`) on
+    the curvature nodes ``kappa``, incidence nodes ``table_mus`` and albedos ``table_albedo``, the same elsewhere."""
     from jaxsss.render.exit_distance import node_rows
     from jaxsss.render.passage import piecewise_linear
 
     if log_q is None:
         shipped = load_curvature_correction()
-        log_q, table_mus = shipped["log_q"], tuple(shipped["mus"])
-    rows = node_rows(log_q, table_mus, CORRECTION_ALBEDO, mus, albedo,
-                     "curvature_correction (transport-corrected curvature ratio)")  # (K, C, Nk, D)
+        log_q, table_mus, table_albedo = shipped["log_q"], tuple(shipped["mus"]), tuple(shipped["albedo"])
+    elif table_albedo is None:
+        raise ValueError("log_correction_table: a log_q of its own needs its table_albedo (its albedo nodes)")
+    rows = node_rows(log_q, table_mus, table_albedo, mus, albedo,  # (K, C, Nk, D)
+                     "curvature_correction (transport-corrected curvature ratio)", coordinate="diffusion")
     # Linear in d / l_u at every curvature node: (G, K, C, Nk) -> (Nk, G, 1, K, C).
     by_d = piecewise_linear(r_lu[:, None, :, None], CORRECTION_D, jnp.moveaxis(rows, 3, 0))
     by_d = jnp.moveaxis(by_d, 3, 0)[:, :, None]
@@ -223,8 +235,10 @@ def main(argv=None) -> int:
         description="The transport correction of the curvature ratio of the white kernels' orders >= 2 "
                     "(jaxsss.render.curvature_correction).",
         photons_help="photons per walk (6 spheres and a half-space per node)", load=load_curvature_correction,
-        refit=lambda tab: {"log_q": fit_curvature_correction(tab["sphere"], tab["plane"], mus=tuple(tab["mus"]))},
+        refit=lambda tab: {"log_q": fit_curvature_correction(tab["sphere"], tab["plane"], mus=tuple(tab["mus"]),
+                                                             albedos=tuple(tab["albedo"]))},
         generate=generate_curvature_correction, node_keys=("log_q", "sphere", "plane"),
+        albedo_keys=("log_q", "sphere", "plane"),
         describe=lambda tab: (f"log Q {tab['log_q'].shape} (mu_i, albedo, kappa l_u, d / l_u); "
                               f"{int(tab['photons'])} photons per walk, {float(tab['seconds']):.0f} s"))
 

@@ -39,7 +39,6 @@ from pathlib import Path
 import numpy as np
 
 from jaxsss.render.curvature_correction import (
-    CORRECTION_ALBEDO,
     CORRECTION_D,
     CORRECTION_D_EDGES,
     CORRECTION_RADII,
@@ -47,10 +46,9 @@ from jaxsss.render.curvature_correction import (
     fit_curvature_correction,
 )
 
-__all__ = ["DIELECTRIC_ETAS", "DIELECTRIC_KAPPA", "DIELECTRIC_MUS", "DIELECTRIC_PHOTONS", "DIELECTRIC_RADII",
-           "DIELECTRIC_TABLE",
-           "KAPPA_MAX_DIELECTRIC", "dielectric_log_correction_table", "generate_dielectric_correction",
-           "load_dielectric_correction", "tally_eta"]
+__all__ = ["DIELECTRIC_ALBEDO", "DIELECTRIC_ETAS", "DIELECTRIC_KAPPA", "DIELECTRIC_MUS", "DIELECTRIC_PHOTONS",
+           "DIELECTRIC_RADII", "DIELECTRIC_TABLE", "KAPPA_MAX_DIELECTRIC", "dielectric_log_correction_table",
+           "generate_dielectric_correction", "load_dielectric_correction", "tally_eta"]
 
 DIELECTRIC_ETAS = (1.1, 1.2, 1.3, 1.4, 1.5, 1.6)
 """Relative indices of the table, over the white Monte Carlo family's range (water 1.33, skin 1.4, wax and marble
@@ -59,6 +57,10 @@ DIELECTRIC_MUS = (1.0, 0.5, 0.1)
 """Incidence nodes of the dielectric tables (and of :mod:`jaxsss.render.dielectric_current`'s): the white-oblique
 kernel's (1 and :data:`jaxsss.render.bssrdf.KERNEL_MUS`); the index-matched tables' node at 0.75 for lights behind
 (:data:`jaxsss.render.bssrdf.LIGHTS_BEHIND_MUS`) has no dielectric walks yet."""
+DIELECTRIC_ALBEDO = (0.3, 0.6, 0.8, 0.9, 0.97, 0.995)
+"""Single-scattering albedos of the walks (linear in ``sqrt(1 - albedo)`` between, held beyond the ends): the
+index-matched table's before its node at 0.999 (2026-12-02), which the Fresnel walks have not had (the near part
+``Q < 1`` that is used here changes little above 0.97)."""
 DIELECTRIC_PHOTONS = 200_000
 """Photons per walk: a fifth of the index-matched table's (every walk crosses a Fresnel boundary and is reflected
 40-60% of the time, so a walk costs 2-3x as much; 12 minutes per ``eta`` on one core); the near part that is used sits
@@ -80,10 +82,11 @@ def tally_eta(eta: float, photons: int = DIELECTRIC_PHOTONS, seed: int = 47, pro
     from jaxsss.render.walk import sphere_and_plane_tallies
 
     tally = functools.partial(_tally, eta=float(eta), min_order=1)
-    sphere, plane = sphere_and_plane_tallies(tally, DIELECTRIC_MUS, CORRECTION_ALBEDO, DIELECTRIC_RADII, photons, seed,
+    sphere, plane = sphere_and_plane_tallies(tally, DIELECTRIC_MUS, DIELECTRIC_ALBEDO, DIELECTRIC_RADII, photons, seed,
                                              f"dielectric curvature correction, eta {eta:g}", progress)
     return {"sphere": sphere, "plane": plane,
-            "log_q": fit_curvature_correction(sphere, plane, float(eta), DIELECTRIC_RADII, DIELECTRIC_MUS)}
+            "log_q": fit_curvature_correction(sphere, plane, float(eta), DIELECTRIC_RADII, DIELECTRIC_MUS,
+                                              DIELECTRIC_ALBEDO)}
 
 
 def generate_dielectric_correction(photons: int = DIELECTRIC_PHOTONS, seed: int = 47, progress: bool = True) -> dict:
@@ -92,7 +95,7 @@ def generate_dielectric_correction(photons: int = DIELECTRIC_PHOTONS, seed: int 
     parts = [tally_eta(eta, photons, seed, progress) for eta in DIELECTRIC_ETAS]
     return {**{k: np.stack([p[k] for p in parts]) for k in ("log_q", "sphere", "plane")},
             "eta": np.asarray(DIELECTRIC_ETAS), "mus": np.asarray(DIELECTRIC_MUS),
-            "albedo": np.asarray(CORRECTION_ALBEDO), "radii": np.asarray(DIELECTRIC_RADII),
+            "albedo": np.asarray(DIELECTRIC_ALBEDO), "radii": np.asarray(DIELECTRIC_RADII),
             "kappa": np.asarray(DIELECTRIC_KAPPA), "d": np.asarray(CORRECTION_D), "d_edges": CORRECTION_D_EDGES,
             "photons": photons, "seed": seed, "seconds": time.perf_counter() - t0,
             "source": "jaxsss.render.walk.pencil_beam_walk(eta): isotropic sphere and half-space behind a smooth "
@@ -117,7 +120,7 @@ def dielectric_log_correction_table(r_lu, kappa_lu, mus, albedo, eta: float):
     hi, t = min(lo + 1, len(tab["eta"]) - 1), w - lo
     log_q = (1.0 - t) * tab["log_q"][lo] + t * tab["log_q"][hi]
     return log_correction_table(r_lu, kappa_lu, mus, albedo, log_q=log_q, kappa=DIELECTRIC_KAPPA,
-                                table_mus=tuple(tab["mus"]))
+                                table_mus=tuple(tab["mus"]), table_albedo=tuple(tab["albedo"]))
 
 
 def main(argv=None) -> int:
@@ -131,7 +134,7 @@ def main(argv=None) -> int:
         photons_help="photons per walk (15 spheres and a half-space per node and eta)",
         load=load_dielectric_correction,
         refit=lambda tab: {"log_q": np.stack([fit_curvature_correction(s, p, float(e), DIELECTRIC_RADII,
-                                                                       tuple(tab["mus"]))
+                                                                       tuple(tab["mus"]), tuple(tab["albedo"]))
                                               for s, p, e in zip(tab["sphere"], tab["plane"], tab["eta"])])},
         generate=generate_dielectric_correction,
         describe=lambda tab: (f"log Q {tab['log_q'].shape} (eta, mu_i, albedo, kappa l_u, d / l_u); "

@@ -53,8 +53,9 @@ the back-lit images that other parts of the model leave short (the hat mix betwe
 docs/path_tracer.md), chicken1 0.150 / 0.122 / 0.171 -> 0.149 / 0.142 / 0.188 and four held-out spheres likewise, and
 helped only the red terminator bands (ketchup lit from the side and behind 0.142 -> 0.077).
 
-Tabulated per oblique node (:data:`AZIMUTH_MUS`), albedo (:data:`jaxsss.render.curvature_correction.CORRECTION_ALBEDO`)
-and curvature node (the plane and the correction's spheres), on its chord bins; linear between them and held beyond.
+Tabulated per oblique node (:data:`AZIMUTH_MUS`), albedo (:data:`jaxsss.render.curvature_correction.CORRECTION_ALBEDO`;
+linear in ``sqrt(1 - albedo)`` between, as ``Q``) and curvature node (the plane and the correction's spheres), on its
+chord bins; linear between them and held beyond.
 Where it is used: the sums of the lights behind the object (the scene plan's ``exit azimuth`` line: the exit's
 current, :mod:`jaxsss.render.exit_current`), with ``Q``: from the light's side the kernels' short exitance ahead of
 the entry stands in for the exit's missing azimuth (docs/path_tracer.md, "Two errors that cancel at the terminator").
@@ -217,8 +218,9 @@ def factor_harmonics(a, h) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     return b1, b2, 1.0 / (1.0 + (a1 * b1 + a2 * b2) / 2.0)
 
 
-def fit_oblique_azimuth(sphere: np.ndarray, plane: np.ndarray, mus=AZIMUTH_MUS) -> dict:
-    """``B``, ``B2`` and ``G`` ``(U, A, len(CORRECTION_KAPPA), D)`` from the walks' tallies (``sphere`` ``(U, A, R, 4,
+def fit_oblique_azimuth(sphere: np.ndarray, plane: np.ndarray, mus=AZIMUTH_MUS, albedos=None) -> dict:
+    """``B``, ``B2`` and ``G`` ``(U, A, len(CORRECTION_KAPPA), D)`` at the albedos ``albedos`` (default
+    :data:`jaxsss.render.curvature_correction.CORRECTION_ALBEDO`) from the walks' tallies (``sphere`` ``(U, A, R, 4,
     D)`` over :data:`jaxsss.render.curvature_correction.CORRECTION_RADII`, ``plane`` ``(U, A, 4, D)``) and the kernel's
     own harmonics (:func:`kernel_harmonic`: the white-oblique kernel with the curvature ratio, ``Q`` and the cut beam,
     the beam a render's light column) on the same spheres (:func:`factor_harmonics`); with the walk's two harmonics
@@ -230,16 +232,17 @@ def fit_oblique_azimuth(sphere: np.ndarray, plane: np.ndarray, mus=AZIMUTH_MUS) 
     from jaxsss.render.bssrdf import white_kernel, white_tables
     from jaxsss.render.curvature_correction import CORRECTION_ALBEDO, CORRECTION_D, CORRECTION_D_EDGES, CORRECTION_RADII
 
+    albedos = tuple(float(a) for a in (CORRECTION_ALBEDO if albedos is None else albedos))
     d = np.asarray(CORRECTION_D)
     area = np.pi * (CORRECTION_D_EDGES[1:] ** 2 - CORRECTION_D_EDGES[:-1] ** 2)
     oblique = tuple(float(m) for m in mus)
     mus, sources = white_tables(0.0, 1.0, True, mus=oblique)
-    shape = (len(oblique), len(CORRECTION_ALBEDO), len(CORRECTION_RADII) + 1)
+    shape = (len(oblique), len(albedos), len(CORRECTION_RADII) + 1)
     b_all, b2_all, g_all = np.zeros(shape + (len(d),)), np.zeros(shape + (len(d),)), np.ones(shape + (len(d),))
     m_all = np.ones(shape + (len(d),))
     h_walk, h_kernel = np.full(shape + (2, len(d)), np.nan), np.full(shape + (N_HARMONICS, len(d)), np.nan)
     index = np.arange(len(d))
-    for j, albedo in enumerate(CORRECTION_ALBEDO):
+    for j, albedo in enumerate(albedos):
         medium = jaxsss.Medium(jnp.array([1.0 - albedo]), jnp.array([albedo]), 1.0)
         # The back-lit render's kernel: the cut beam on (a render cuts the light columns that end in the object).
         kernel = white_kernel(medium, sources, mus, shift=True, curvature=True, first_order=True,
@@ -273,20 +276,23 @@ def fit_oblique_azimuth(sphere: np.ndarray, plane: np.ndarray, mus=AZIMUTH_MUS) 
 
 
 def generate_oblique_azimuth(photons: int = AZIMUTH_PHOTONS, seed: int = 71, progress: bool = True,
-                             mus=AZIMUTH_MUS) -> dict:
-    """Run the walks (``mus``, default :data:`AZIMUTH_MUS`, x the correction's albedos, each on a half-space and the
-    correction's spheres; seeds by each node's slot among :data:`AZIMUTH_MUS`) and return the table: ``B``, ``G``, the
-    harmonics, the tallies and metadata. A node's fit needs the correction's and the cut beam's tables at that node."""
+                             mus=AZIMUTH_MUS, albedos=None) -> dict:
+    """Run the walks (``mus``, default :data:`AZIMUTH_MUS`, x ``albedos``, default the correction's, each on a
+    half-space and the correction's spheres; seeds by each node's slot among :data:`AZIMUTH_MUS` and each albedo's
+    among the correction's) and return the table: ``B``, ``G``, the harmonics, the tallies and metadata. A node's fit
+    needs the correction's and the cut beam's tables at that node (and the correction's at that albedo)."""
     from jaxsss.render.curvature_correction import CORRECTION_ALBEDO, CORRECTION_RADII
     from jaxsss.render.walk import sphere_and_plane_tallies
 
     t0 = time.perf_counter()
     mus = tuple(float(m) for m in mus)
-    sphere, plane = sphere_and_plane_tallies(_tally, mus, CORRECTION_ALBEDO, CORRECTION_RADII, photons, seed,
-                                             "oblique azimuth", progress, table_mus=AZIMUTH_MUS)
-    return {**fit_oblique_azimuth(sphere, plane, mus), "sphere": sphere, "plane": plane, "mus": np.asarray(mus),
-            "albedo": np.asarray(CORRECTION_ALBEDO), "radii": np.asarray(CORRECTION_RADII), "photons": photons,
-            "seed": seed, "seconds": time.perf_counter() - t0,
+    albedos = tuple(float(a) for a in (CORRECTION_ALBEDO if albedos is None else albedos))
+    sphere, plane = sphere_and_plane_tallies(_tally, mus, albedos, CORRECTION_RADII, photons, seed,
+                                             "oblique azimuth", progress, table_mus=AZIMUTH_MUS,
+                                             table_albedo=CORRECTION_ALBEDO)
+    return {**fit_oblique_azimuth(sphere, plane, mus, albedos), "sphere": sphere, "plane": plane,
+            "mus": np.asarray(mus), "albedo": np.asarray(albedos), "radii": np.asarray(CORRECTION_RADII),
+            "photons": photons, "seed": seed, "seconds": time.perf_counter() - t0,
             "source": "jaxsss.render.walk.pencil_beam_walk: index-matched isotropic sphere and half-space, orders "
                       ">= 2, the first two azimuthal harmonics about the entry"}
 
@@ -300,14 +306,16 @@ def load_oblique_azimuth() -> dict:
 
 def azimuth_rows(mus: tuple, albedo):
     """``(K, C, len(CORRECTION_KAPPA), D, 3)``: the factor's ``(G, B, B_2)`` for the kernel's nodes ``mus`` and albedos
-    ``(C,)``, linear in the albedo between the table's; the normal node (1) has ``G = 1`` and ``B = B_2 = 0``."""
-    from jaxsss.render.curvature_correction import CORRECTION_ALBEDO
+    ``(C,)``, linear in ``sqrt(1 - albedo)`` between the table's (as ``Q``'s,
+    :func:`jaxsss.render.curvature_correction.log_correction_table`); the normal node (1) has ``G = 1`` and ``B = B_2 =
+    0``."""
     from jaxsss.render.exit_distance import node_rows
 
     table = load_oblique_azimuth()
     oblique = tuple(m for m in mus if m != 1.0)
-    rows = [node_rows(table[name], tuple(table["mus"]), CORRECTION_ALBEDO, oblique, albedo,
-                      "oblique_azimuth (an oblique beam's light ahead of its entry)") for name in ("G", "B", "B2")]
+    rows = [node_rows(table[name], tuple(table["mus"]), tuple(table["albedo"]), oblique, albedo,
+                      "oblique_azimuth (an oblique beam's light ahead of its entry)", coordinate="diffusion")
+            for name in ("G", "B", "B2")]
     out = []
     for value, row in zip((1.0, 0.0, 0.0), rows):
         full = [jnp.full(row.shape[1:], value, row.dtype) if m == 1.0 else row[oblique.index(m)] for m in mus]
@@ -348,8 +356,9 @@ def main(argv=None) -> int:
         description="The first two azimuthal harmonics of an oblique beam's orders >= 2 about its entry, walk over the "
                     "white-oblique kernel (jaxsss.render.oblique_azimuth).",
         photons_help="photons per walk (the correction's spheres and a half-space per node)", load=load_oblique_azimuth,
-        refit=lambda tab: fit_oblique_azimuth(tab["sphere"], tab["plane"], tuple(tab["mus"])),
+        refit=lambda tab: fit_oblique_azimuth(tab["sphere"], tab["plane"], tuple(tab["mus"]), tuple(tab["albedo"])),
         generate=generate_oblique_azimuth, node_keys=("B", "B2", "G", "M", "H_walk", "H_kernel", "sphere", "plane"),
+        albedo_keys=("B", "B2", "G", "M", "H_walk", "H_kernel", "sphere", "plane"),
         describe=lambda tab: (f"B {tab['B'].shape} (mu_i, albedo, kappa l_u, d / l_u); "
                               f"{int(tab['photons'])} photons per walk, {float(tab['seconds']):.0f} s"))
 

@@ -16,8 +16,9 @@ import functools
 
 import numpy as np
 
-__all__ = ["SEED_ORDER", "diffuse_light_walk", "fresnel_walk", "isotropic_directions", "load_table", "pencil_beam_walk",
-           "roulette", "seed_slot", "insert_node", "sphere_and_plane_tallies", "table_main", "walk_photons"]
+__all__ = ["SEED_ORDER", "diffuse_light_walk", "fresnel_walk", "insert_albedo", "insert_node", "isotropic_directions",
+           "load_table", "pencil_beam_walk", "roulette", "seed_slot", "sphere_and_plane_tallies", "table_main",
+           "walk_photons"]
 
 SEED_ORDER = (1.0, 0.5, 0.1, 0.75)
 """Incidence nodes in the order they joined the walks' tables (0.75 on 2026-12-02, for lights behind:
@@ -217,15 +218,35 @@ def insert_node(table: dict, part: dict, keys) -> dict:
     return out
 
 
+def insert_albedo(table: dict, part: dict, keys) -> dict:
+    """``table`` (albedo nodes ``albedo``, ascending, on the second axis of its entries ``keys``) with the one-albedo
+    table ``part`` (the same incidence nodes) put in at the end: a new albedo node must exceed the table's last, so
+    that its seed slot (its index in the whole tuple, :func:`sphere_and_plane_tallies`) is the one ``--regenerate``
+    gives it. ``seconds`` the sum of both."""
+    a, albedo = float(part["albedo"][0]), [float(v) for v in table["albedo"]]
+    if len(part["albedo"]) != 1 or a <= albedo[-1]:
+        raise ValueError(f"insert_albedo: part must hold one albedo above the table's last {albedo[-1]:g}; got "
+                         f"{list(part['albedo'])}")
+    if [float(m) for m in part["mus"]] != [float(m) for m in table["mus"]]:
+        raise ValueError(f"insert_albedo: part's mus {list(part['mus'])} must be the table's {list(table['mus'])}")
+    out = dict(table)
+    out["albedo"] = np.append(np.asarray(table["albedo"]), a)
+    for key in keys:
+        out[key] = np.concatenate([np.asarray(table[key]), np.asarray(part[key])], axis=1)
+    out["seconds"] = float(table["seconds"]) + float(part["seconds"])
+    return out
+
+
 def table_main(argv, *, prog: str, description: str, path, photons: int, photons_help: str, load, refit, generate,
-               describe, node_keys: tuple = ()) -> int:
+               describe, node_keys: tuple = (), albedo_keys: tuple = ()) -> int:
     """The command line of a transport table made by these walks (``python -m jaxsss.render.<table>``): without
     options it describes the shipped table at ``path``; ``--refit`` refits it from its own tallies (``refit(table) ->
     updated entries``, no walk; None: not offered); ``--regenerate`` runs the walks (``generate(photons) -> table``,
     with ``seconds``) and writes it (``--out`` elsewhere); ``--add-node MU`` runs one more incidence node's walks
     (``generate(photons, mus=(MU,))``, its seeds from :func:`seed_slot`) and puts its rows of ``node_keys`` in
-    (:func:`insert_node`): the shipped rows stay as they were. ``load()`` reads the shipped table; ``describe(table)``
-    is its one-line summary."""
+    (:func:`insert_node`): the shipped rows stay as they were; ``--add-albedo A`` likewise one more albedo above the
+    table's last (``generate(photons, albedos=(A,))``, its rows of ``albedo_keys``, :func:`insert_albedo`). ``load()``
+    reads the shipped table; ``describe(table)`` is its one-line summary."""
     import argparse
     from pathlib import Path
 
@@ -236,6 +257,10 @@ def table_main(argv, *, prog: str, description: str, path, photons: int, photons
     if node_keys:
         p.add_argument("--add-node", type=float, metavar="MU",
                        help="run the walks of one more incidence cosine MU (0 < MU <= 1) and add its rows")
+    if albedo_keys:
+        p.add_argument("--add-albedo", type=float, metavar="A",
+                       help="run the walks of one more single-scattering albedo A (above the table's last, below 1) "
+                            "and add its rows")
     p.add_argument("--photons", type=int, default=photons, help=f"{photons_help} (default {photons})")
     p.add_argument("--out", type=Path, default=Path(path), help=f"the table's path (default {path})")
     args = p.parse_args(argv)
@@ -245,6 +270,13 @@ def table_main(argv, *, prog: str, description: str, path, photons: int, photons
         tab = insert_node(dict(load()), generate(args.photons, mus=(args.add_node,)), node_keys)
         np.savez_compressed(args.out, **tab)
         print(f"added mu_i {args.add_node:g} to {args.out} ({len(tab['mus'])} nodes)")
+        return 0
+    if getattr(args, "add_albedo", None) is not None:
+        if not 0.0 < args.add_albedo < 1.0:
+            p.error(f"--add-albedo: the albedo must lie in (0, 1); got {args.add_albedo}")
+        tab = insert_albedo(dict(load()), generate(args.photons, albedos=(args.add_albedo,)), albedo_keys)
+        np.savez_compressed(args.out, **tab)
+        print(f"added albedo {args.add_albedo:g} to {args.out} ({len(tab['albedo'])} albedos)")
         return 0
     if getattr(args, "refit", False):
         tab = dict(load())
@@ -263,18 +295,20 @@ def table_main(argv, *, prog: str, description: str, path, photons: int, photons
 
 
 def sphere_and_plane_tallies(tally, mus, albedos, radii, photons: int, seed: int, desc: str, progress: bool = True,
-                             table_mus=None):
+                             table_mus=None, table_albedo=None):
     """``(sphere (U, A, R, ...), plane (U, A, ...))``: ``tally(albedo, mu_i, radius, photons, seed)`` for every
     incidence cosine in ``mus`` and albedo in ``albedos``, on the half-space (``radius=None``) and each sphere of
     ``radii`` (transport lengths). Seeds: ``seed + 1000 k + 100 j`` for the half-space, then ``+ 1 + r`` per sphere
     (the shipped tables' scheme), ``k`` the node's :func:`seed_slot` among ``table_mus`` (the whole table's nodes;
-    default ``mus``). A progress bar over the nodes (``desc``)."""
+    default ``mus``) and ``j`` the albedo's index in ``table_albedo`` (the whole table's albedos, ascending; default
+    ``albedos``). A progress bar over the nodes (``desc``)."""
     from tqdm.auto import tqdm
 
     sphere, plane = {}, {}
     nodes = [(k, j) for k in range(len(mus)) for j in range(len(albedos))]
     for k, j in tqdm(nodes, desc=desc, disable=not progress):
-        base = seed + 1000 * seed_slot(mus[k], mus if table_mus is None else table_mus) + 100 * j
+        slot = j if table_albedo is None else [float(a) for a in table_albedo].index(float(albedos[j]))
+        base = seed + 1000 * seed_slot(mus[k], mus if table_mus is None else table_mus) + 100 * slot
         plane[k, j] = tally(albedos[j], mus[k], None, photons, base)
         for r, radius in enumerate(radii):
             sphere[k, j, r] = tally(albedos[j], mus[k], radius, photons, base + 1 + r)

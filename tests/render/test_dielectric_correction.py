@@ -11,7 +11,6 @@ from jaxsss.medium import Medium
 from jaxsss.render import bssrdf
 from jaxsss.render.bssrdf import white_kernel, white_tables
 from jaxsss.render.curvature_correction import (
-    CORRECTION_ALBEDO,
     CORRECTION_D,
     CORRECTION_D_EDGES,
     CORRECTION_RADII,
@@ -19,6 +18,7 @@ from jaxsss.render.curvature_correction import (
     renderer_model,
 )
 from jaxsss.render.dielectric_correction import (
+    DIELECTRIC_ALBEDO,
     DIELECTRIC_ETAS,
     DIELECTRIC_KAPPA,
     DIELECTRIC_MUS,
@@ -49,7 +49,7 @@ def test_the_table_against_fresh_walks():
     p = _tally(0.97, 1.0, None, 40_000, 6, eta=eta, min_order=1)
     model = renderer_model(1.0, 0.97, radius, eta=eta)
     log_q = load_dielectric_correction()["log_q"][DIELECTRIC_ETAS.index(eta), DIELECTRIC_MUS.index(1.0),
-                                                  CORRECTION_ALBEDO.index(0.97), 1 + DIELECTRIC_RADII.index(radius)]
+                                                  DIELECTRIC_ALBEDO.index(0.97), 1 + DIELECTRIC_RADII.index(radius)]
     for (lo, hi), (q_lo, q_hi), rtol in (((0.5, 2.0), (0.9, 1.05), 0.03), ((2.0, 4.0), (0.75, 0.95), 0.03),
                                          ((6.0, 8.0), (1.2, 2.0), 0.1)):
         b = _bins(lo, hi)
@@ -67,7 +67,7 @@ def test_shapes_eta_interpolation_and_bad_input():
     assert out.shape == (3, 2, 3, 2) and np.all(np.isfinite(out))
     np.testing.assert_array_equal(out[:, :, 0], 0.0)  # 1 on the plane
     tab = load_dielectric_correction()
-    assert tab["log_q"].shape == (len(DIELECTRIC_ETAS), len(DIELECTRIC_MUS), len(CORRECTION_ALBEDO),
+    assert tab["log_q"].shape == (len(DIELECTRIC_ETAS), len(DIELECTRIC_MUS), len(DIELECTRIC_ALBEDO),
                                   len(DIELECTRIC_KAPPA), len(CORRECTION_D))
     # The index-matched table's spheres, and four smaller ones down to 1.47 l_u, which cap the curvature.
     assert DIELECTRIC_RADII[: len(CORRECTION_RADII)] == CORRECTION_RADII and min(DIELECTRIC_RADII) == 1.47

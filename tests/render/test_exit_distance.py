@@ -1,6 +1,7 @@
 """Exit by distance (jaxsss.render.exit_distance): reference values, shapes, bad and extreme input, invariants and
 autodiff; the split kernel keeps the unsplit one's exitance."""
 
+import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
@@ -8,7 +9,8 @@ import pytest
 from jaxsss.medium import Medium
 from jaxsss.render.bssrdf import exit_distribution, white_kernel, white_tables
 from jaxsss.render.exit_distance import (SPLIT_ALBEDO, SPLIT_D, SPLIT_MU_EDGES, SPLIT_MUS, amplitude_at,
-                                         distance_amplitude, exit_split_distribution, load_exit_distance_table)
+                                         distance_amplitude, exit_split_distribution, load_exit_distance_table,
+                                         node_rows)
 from tests.gradcheck import assert_grad_matches_fd
 from tests.render.kernel_calls import kernel_pair, kernel_sources
 
@@ -115,3 +117,32 @@ def test_gradients_match_finite_differences():
         return jnp.sum(x * jnp.arange(1.0, 5.0)[None, :, None]) + jnp.sum(c)
 
     assert_grad_matches_fd(f, jnp.array([0.62, 0.93, 1.4]), jit=True)
+
+
+def test_node_rows_in_the_diffusion_coordinate():
+    """``node_rows(..., coordinate="diffusion")``: exact at the albedo nodes, linear in ``sqrt(1 - albedo)`` between
+    them (a table that is linear in it is reproduced to rounding, where linear in the albedo misses it by 5%), held
+    beyond the ends, finite with a zero gradient at and above the last node (albedo 1: the square root's slope is
+    infinite there), the gradient between nodes against central differences, and a bad coordinate named."""
+    nodes = (0.3, 0.9, 0.97, 0.995, 0.999)
+    s_nodes = np.sqrt(1.0 - np.asarray(nodes))
+    table = np.stack([s_nodes, 2.0 * s_nodes + 1.0])[:, :, None]  # (U = 2, A, 1): linear in sqrt(1 - a)
+    albedo = jnp.array([0.3, 0.5, 0.95, 0.987, 0.9965, 0.999, 0.9999, 1.0, 0.1])
+    rows = np.asarray(node_rows(table, (1.0, 0.5), nodes, (0.5, 1.0), albedo, "test", coordinate="diffusion"))
+    assert rows.shape == (2, 9, 1)
+    s = np.sqrt(1.0 - np.clip(np.asarray(albedo), nodes[0], nodes[-1]))
+    np.testing.assert_allclose(rows[1, :, 0], s, rtol=1e-12)
+    np.testing.assert_allclose(rows[0, :, 0], 2.0 * s + 1.0, rtol=1e-12)
+    linear = np.asarray(node_rows(table, (1.0, 0.5), nodes, (1.0,), albedo, "test"))[0, :, 0]
+    assert abs(linear[3] / s[3] - 1.0) > 0.05  # 0.987, between 0.97 and 0.995
+    assert np.all(np.isfinite(rows))
+
+    def f(a):
+        return jnp.sum(node_rows(table, (1.0, 0.5), nodes, (1.0,), a, "test", coordinate="diffusion"))
+
+    top = np.asarray(jax.grad(f)(jnp.array([0.999, 0.99999, 1.0])))
+    np.testing.assert_array_equal(top[1:], 0.0)
+    assert np.all(np.isfinite(top))
+    assert_grad_matches_fd(f, jnp.array([0.95, 0.987, 0.9965]), jit=True)
+    with pytest.raises(ValueError, match="coordinate"):
+        node_rows(table, (1.0, 0.5), nodes, (1.0,), albedo, "test", coordinate="log")

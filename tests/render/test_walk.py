@@ -103,3 +103,35 @@ def test_a_node_added_later_leaves_the_shipped_rows_and_gets_its_own_seeds():
         insert_node(whole, part, ("loss",))
     with pytest.raises(ValueError, match="SEED_ORDER"):
         seed_slot(0.3, PASSAGE_MUS)
+
+
+def test_an_albedo_added_later_leaves_the_shipped_rows_and_gets_its_own_seeds():
+    """``--add-albedo`` (``insert_albedo``): an albedo's walks draw their seeds from its index among the whole table's
+    albedos (``table_albedo``), so walking it alone and appending its rows builds the same table as walking every albedo
+    at once (a tally that records its arguments; the real walks are these calls). A new albedo must exceed the last
+    and come with the table's incidence nodes."""
+    from jaxsss.render.walk import insert_albedo, sphere_and_plane_tallies
+
+    def tally(albedo, mu, radius, photons, seed):
+        return np.array([albedo, mu, -1.0 if radius is None else radius, float(seed)])
+
+    args = (tally, (1.0, 0.5), None, (2.0, 3.0), 10, 47, "test", False)
+    albedos = (0.3, 0.9, 0.999)
+
+    def table(part_albedos, table_albedo):
+        sphere, plane = sphere_and_plane_tallies(*args[:2], part_albedos, *args[3:], table_albedo=table_albedo)
+        return {"sphere": sphere, "plane": plane, "mus": np.array([1.0, 0.5]), "albedo": np.array(part_albedos),
+                "seconds": 1.0}
+
+    whole = table(albedos, None)
+    added = insert_albedo(table(albedos[:2], albedos), table(albedos[2:], albedos), ("sphere", "plane"))
+    for key in ("albedo", "sphere", "plane"):
+        np.testing.assert_array_equal(added[key], whole[key])
+    # Without the whole table's albedos the new one would take the first albedo's seeds.
+    alone = table(albedos[2:], None)
+    assert alone["plane"][0, 0, 3] == whole["plane"][0, 0, 3] != whole["plane"][0, 2, 3]
+    assert added["seconds"] == 2.0
+    with pytest.raises(ValueError, match="above the table's last"):
+        insert_albedo(whole, table((0.95,), None), ("plane",))
+    with pytest.raises(ValueError, match="mus"):
+        insert_albedo(table(albedos[:2], albedos), {**table(albedos[2:], albedos), "mus": np.array([1.0])}, ("plane",))
