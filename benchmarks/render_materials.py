@@ -67,10 +67,11 @@ REFERENCE_SPP = {"apple_sphere": 4096, "chicken2_sphere": 4096, "cream_sphere": 
                  "skimmilk_sphere": 4096, "wholemilk_sphere": 4096, "skin2_sphere": 4096, "skin2_sphere_8mm": 4096,
                  "skin1_sphere_8mm": 4096, "skin1_sphere_backlit": 32768, "skin1_sphere_keyrim": 16384,
                  "chicken1_sphere_backlit": 16384, "potato_sphere_8mm": 8192, "chicken2_sphere_8mm": 8192,
-                 "ketchup_sphere_8mm": 8192, "skin1_sphere_12mm": 8192, "chicken1_sphere_12mm": 8192}
+                 "ketchup_sphere_8mm": 8192, "skin1_sphere_12mm": 8192, "chicken1_sphere_12mm": 8192,
+                 "potato_sphere_backlit": 32768}
 """The scenes and their reference's spp (skin1 lit from behind at 8x: its lit pixels are few and dim; chicken1 lit from
 behind and the key and rim lit one at 4x, for the dark side and the rim; the five small spheres added on 2026-12-02,
-lit from the camera's side at 2x)."""
+lit from the camera's side at 2x; the potato lit from behind, at 8x, for its far dark side at albedo 0.9965)."""
 SCENES = tuple(REFERENCE_SPP)
 CONFIG = {"quick": {"mitsuba_spp": (4, 16, 64)}, "full": {"mitsuba_spp": (16, 64, 256, 1024)}}
 ALBEDO_GOAL = 0.9
