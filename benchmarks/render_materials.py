@@ -6,8 +6,9 @@ every material of the Jensen 2001 table with albedo above 0.9, and never slower 
 whose references are tests. This benchmark measures the rest on spheres, with the same functions: apple, chicken2,
 cream, potato, skim milk, whole milk and skin2 (20 mm and 8 mm), skin1 on an 8 mm sphere, and skin1 lit from behind
 (the camera looks at the terminator from the dark side: the renderer's largest known error, docs/path_tracer.md,
-"Two errors that cancel at the terminator"), and skin1 under a key light in front and that rim light behind (the two
-sides summed apart), and small spheres lit from the camera's side (potato, chicken2 and ketchup on 8 mm, skin1 and
+"Two errors that cancel at the terminator"), the potato lit from behind (its far dark side, lit by light that crossed
+a sphere shorter than red's diffusion length: the curvature correction's albedo nodes), and skin1 under a key light in
+front and that rim light behind (the two sides summed apart), and small spheres lit from the camera's side (potato, chicken2 and ketchup on 8 mm, skin1 and
 chicken1 on 12 mm: 1.7 to 18 transport lengths in radius). Every sphere is index-matched (eta 1) under one point
 light, 64 x 64.
 
@@ -17,9 +18,10 @@ and a Mitsuba reference at thousands of spp would take days on this machine.
 References: ``benchmarks/references/materials/<name>.toml`` (the scene), ``.npz`` (``image`` (H, W, 3) linear
 radiance, ``coverage`` (H, W)) and ``.json`` (spp, seeds, seconds, the reference's own noise), made by
 ``--references [NAME ...]`` (Mitsuba ``volpathmis`` at :data:`REFERENCE_SPP`, two halves with seeds 0 and 1; slow:
-whole milk takes about 30 min). They judge the renderer here; one test checks that they are complete, and two
-hold the achieved errors of the back-lit skin1 sphere (the exit's current is kept for that view) and the 8 mm skin1
-sphere (transport's near part of the curvature ratio from the light's side; tests/export/test_compare_bssrdf.py).
+whole milk takes about 30 min). They judge the renderer here; one test checks that they are complete, and others
+hold the achieved errors of the back-lit skin1, chicken1 and potato spheres (the exit's current is kept for that view)
+and the 8 mm skin1 sphere (transport's near part of the curvature ratio from the light's side;
+tests/export/test_compare_bssrdf.py).
 They were not used to set any constant of the renderer (they were rendered after its constants, to check them; the
 exit current's clamp was chosen with the back-lit one in view, and the near part's cap on the committed references
 with these in view, docs/path_tracer.md).

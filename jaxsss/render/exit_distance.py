@@ -143,8 +143,8 @@ def node_rows(table, table_mus, table_albedo, mus, albedo, what: str, coordinate
     - ``"diffusion"``: linear in ``sqrt(1 - albedo)``, diffusion's ``sigma_tr / sigma_t'`` over ``sqrt 3``: the
       coordinate in which light's reach changes evenly near albedo 1 (the diffusion length ``l_d / l_u = 1 / sqrt(3 (1
       - albedo))`` is 3.3 at 0.97, 5.1 at 0.987 and 8.2 at 0.995). For the far part of the curvature correction
-      (:mod:`jaxsss.render.curvature_correction`) at 0.987 on a 7 ``l_u`` sphere, linear in the albedo took ``Q``
-      13-16% under a walk's at 11-13 ``l_u`` from the entry; in this coordinate within 4%."""
+      (:mod:`jaxsss.render.curvature_correction`) at 0.987 on spheres of 7-7.4 ``l_u``, linear in the albedo took
+      ``Q`` 8-16% under a walk's at 8-13 ``l_u`` from the entry; in this coordinate 0-8%."""
     from jaxsss.render.passage import node_interval
 
     table_mus = tuple(float(m) for m in table_mus)
