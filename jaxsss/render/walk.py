@@ -272,9 +272,11 @@ def table_main(argv, *, prog: str, description: str, path, photons: int, photons
         print(f"added mu_i {args.add_node:g} to {args.out} ({len(tab['mus'])} nodes)")
         return 0
     if getattr(args, "add_albedo", None) is not None:
-        if not 0.0 < args.add_albedo < 1.0:
-            p.error(f"--add-albedo: the albedo must lie in (0, 1); got {args.add_albedo}")
-        tab = insert_albedo(dict(load()), generate(args.photons, albedos=(args.add_albedo,)), albedo_keys)
+        shipped = dict(load())
+        last = float(shipped["albedo"][-1])
+        if not last < args.add_albedo < 1.0:
+            p.error(f"--add-albedo: the albedo must lie in ({last:g}, 1), above the table's last; got {args.add_albedo}")
+        tab = insert_albedo(shipped, generate(args.photons, albedos=(args.add_albedo,)), albedo_keys)
         np.savez_compressed(args.out, **tab)
         print(f"added albedo {args.add_albedo:g} to {args.out} ({len(tab['albedo'])} albedos)")
         return 0
@@ -304,6 +306,12 @@ def sphere_and_plane_tallies(tally, mus, albedos, radii, photons: int, seed: int
     ``albedos``). A progress bar over the nodes (``desc``)."""
     from tqdm.auto import tqdm
 
+    if table_albedo is not None:
+        missing = [float(a) for a in albedos if float(a) not in [float(v) for v in table_albedo]]
+        if missing:
+            raise ValueError(f"sphere_and_plane_tallies: albedos {missing} have no seed slot among the table's "
+                             f"{tuple(float(v) for v in table_albedo)} (a new albedo goes at the end of the module's "
+                             "albedo tuple first)")
     sphere, plane = {}, {}
     nodes = [(k, j) for k in range(len(mus)) for j in range(len(albedos))]
     for k, j in tqdm(nodes, desc=desc, disable=not progress):

@@ -154,3 +154,17 @@ def test_gradients_match_finite_differences():
         return jnp.sum(log_correction_table(r, kappa, (1.0, 0.1), jnp.stack([p[2], 0.5 * p[2]])) ** 2)
 
     assert_grad_matches_fd(f, jnp.array([1.1, 0.9, 0.93]), jit=True)
+
+
+def test_the_command_line_describes_the_table_and_refuses_an_albedo_it_cannot_add(capsys):
+    """``python -m jaxsss.render.curvature_correction``: without options it describes the shipped table (seven albedos);
+    ``--add-albedo`` refuses, before any walk, an albedo at or under the table's last (0.999) or at 1."""
+    from jaxsss.render.curvature_correction import main
+
+    assert main([]) == 0
+    assert f"log Q ({len(CORRECTION_MUS)}, 7, " in capsys.readouterr().out
+    for bad in ("0.97", "0.999", "1.0"):
+        with pytest.raises(SystemExit) as e:
+            main(["--add-albedo", bad])
+        assert e.value.code == 2
+        assert "above the table's last" in capsys.readouterr().err

@@ -135,3 +135,5 @@ def test_an_albedo_added_later_leaves_the_shipped_rows_and_gets_its_own_seeds():
         insert_albedo(whole, table((0.95,), None), ("plane",))
     with pytest.raises(ValueError, match="mus"):
         insert_albedo(table(albedos[:2], albedos), {**table(albedos[2:], albedos), "mus": np.array([1.0])}, ("plane",))
+    with pytest.raises(ValueError, match="no seed slot"):
+        table((0.9999,), albedos)
