@@ -275,7 +275,8 @@ def table_main(argv, *, prog: str, description: str, path, photons: int, photons
         shipped = dict(load())
         last = float(shipped["albedo"][-1])
         if not last < args.add_albedo < 1.0:
-            p.error(f"--add-albedo: the albedo must lie in ({last:g}, 1), above the table's last; got {args.add_albedo}")
+            p.error(f"--add-albedo: the albedo must lie in ({last:g}, 1), above the table's last; "
+                    f"got {args.add_albedo}")
         tab = insert_albedo(shipped, generate(args.photons, albedos=(args.add_albedo,)), albedo_keys)
         np.savez_compressed(args.out, **tab)
         print(f"added albedo {args.add_albedo:g} to {args.out} ({len(tab['albedo'])} albedos)")
