@@ -307,17 +307,16 @@ def sphere_and_plane_tallies(tally, mus, albedos, radii, photons: int, seed: int
     ``albedos``). A progress bar over the nodes (``desc``)."""
     from tqdm.auto import tqdm
 
-    if table_albedo is not None:
-        missing = [float(a) for a in albedos if float(a) not in [float(v) for v in table_albedo]]
-        if missing:
-            raise ValueError(f"sphere_and_plane_tallies: albedos {missing} have no seed slot among the table's "
-                             f"{tuple(float(v) for v in table_albedo)} (a new albedo goes at the end of the module's "
-                             "albedo tuple first)")
+    table_albedo = [float(a) for a in (albedos if table_albedo is None else table_albedo)]
+    missing = [float(a) for a in albedos if float(a) not in table_albedo]
+    if missing:
+        raise ValueError(f"sphere_and_plane_tallies: albedos {missing} have no seed slot among the table's "
+                         f"{tuple(table_albedo)} (a new albedo goes at the end of the module's albedo tuple first)")
+    slots = [table_albedo.index(float(a)) for a in albedos]
     sphere, plane = {}, {}
     nodes = [(k, j) for k in range(len(mus)) for j in range(len(albedos))]
     for k, j in tqdm(nodes, desc=desc, disable=not progress):
-        slot = j if table_albedo is None else [float(a) for a in table_albedo].index(float(albedos[j]))
-        base = seed + 1000 * seed_slot(mus[k], mus if table_mus is None else table_mus) + 100 * slot
+        base = seed + 1000 * seed_slot(mus[k], mus if table_mus is None else table_mus) + 100 * slots[j]
         plane[k, j] = tally(albedos[j], mus[k], None, photons, base)
         for r, radius in enumerate(radii):
             sphere[k, j, r] = tally(albedos[j], mus[k], radius, photons, base + 1 + r)
